@@ -1,0 +1,91 @@
+// The pose graph: nodes (poses keyed by integer id, ids increasing with time) and relative-pose
+// constraints with 6x6 information matrices.
+#pragma once
+
+#include <cstddef>
+#include <stdexcept>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "toro_ros/core/pose3.h"
+
+namespace toro {
+
+using NodeId = long long;
+
+// Thrown when a node or constraint is refused; the message names it and says why.
+class GraphError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct Node {
+  NodeId id = 0;
+  Pose3 pose;  // world_T_node (the current estimate)
+};
+
+// Constraint from -> to: `measurement` is from_T_to, i.e. the pose of `to` in the frame of `from`.
+// The information matrix is ordered as in g2o: translation (x y z) first, then rotation, and the
+// rotational block is in units of the quaternion's vector part (about half the rotation angle), so
+// an information of 4*w on the q-vector is w per rad^2 on the angle.
+struct Constraint {
+  NodeId from = 0;
+  NodeId to = 0;
+  Pose3 measurement;
+  Matrix6 information = Matrix6::Identity();
+};
+
+// How big 2D graphs map onto the 3D graph: they are lifted into the plane z = 0, and remember
+// that they are 2D so writers and metrics can use the 2D definitions.
+enum class GraphDimension { k3D, k2D };
+
+class PoseGraph {
+ public:
+  // Adds a node; throws GraphError if the id exists or the pose is not finite.
+  void addNode(NodeId id, const Pose3& pose);
+  // Adds a constraint after validation (see validateConstraint); returns its index.
+  std::size_t addConstraint(const Constraint& constraint);
+
+  // Empty string if the constraint is acceptable for this graph, otherwise the reason.
+  // Checks: finite measurement and information, symmetric positive-definite information,
+  // both endpoints known, no self-loop.
+  std::string validateConstraint(const Constraint& constraint) const;
+
+  bool hasNode(NodeId id) const { return index_.count(id) != 0; }
+  // Dense index of a node (insertion order); throws GraphError for an unknown id.
+  std::size_t indexOf(NodeId id) const;
+
+  std::size_t numNodes() const { return nodes_.size(); }
+  std::size_t numConstraints() const { return constraints_.size(); }
+  bool empty() const { return nodes_.empty(); }
+
+  const std::vector<Node>& nodes() const { return nodes_; }
+  const std::vector<Constraint>& constraints() const { return constraints_; }
+  const Node& node(std::size_t index) const { return nodes_[index]; }
+  const Pose3& pose(NodeId id) const { return nodes_[indexOf(id)].pose; }
+  void setPose(NodeId id, const Pose3& pose) { nodes_[indexOf(id)].pose = pose; }
+  void setPoseAt(std::size_t index, const Pose3& pose) { nodes_[index].pose = pose; }
+
+  // Ids held fixed by the file (g2o FIX); informational for the optimisers' gauge choice.
+  const std::vector<NodeId>& fixedNodes() const { return fixed_; }
+  void addFixed(NodeId id) { fixed_.push_back(id); }
+
+  GraphDimension dimension() const { return dimension_; }
+  void setDimension(GraphDimension d) { dimension_ = d; }
+
+  void clear();
+
+ private:
+  std::vector<Node> nodes_;
+  std::vector<Constraint> constraints_;
+  std::unordered_map<NodeId, std::size_t> index_;
+  std::vector<NodeId> fixed_;
+  GraphDimension dimension_ = GraphDimension::k3D;
+};
+
+// Reason string for an information matrix that is unusable (non-finite, asymmetric beyond a
+// relative tolerance, or not positive definite); empty if fine.
+std::string checkInformation(const Matrix6& information);
+
+}  // namespace toro

@@ -1,0 +1,103 @@
+// TORO 3D: stochastic gradient descent on a tree parameterisation of the pose graph
+// (Grisetti, Grzonka, Stachniss, Pfaff, Burgard, IROS 2007).
+//
+// Each node's parameter is its pose relative to its tree parent; a node's pose is the product of
+// the parameters along the tree path from the root.  One iteration visits every constraint once,
+// ordered by the level of its top node; each visit moves only the parameters on the constraint's
+// tree path, so the top node (and everything outside the path's subtrees) keeps its pose.
+#pragma once
+
+#include <cstddef>
+#include <vector>
+
+#include "toro_ros/core/parameter_tree.h"
+#include "toro_ros/core/pose_graph.h"
+
+namespace toro {
+
+enum class InitialGuess {
+  kChainOnTree,  // compose the measurements along the tree from the root (the paper's tools)
+  kFromGraph,    // keep the poses stored in the graph
+};
+
+enum class RotationUpdate {
+  kSlerp,       // the paper's update: slerp with the exact incremental decomposition (Eq. 19)
+  kNaiveEuler,  // spread equal shares of roll/pitch/yaw error, ignoring non-commutativity
+                // (bench/test only: it shows why the paper's update is needed, Fig. 2)
+};
+
+struct TreeOptimizerOptions {
+  // Learning rate of iteration k is 1 / (gamma * k).
+  double gamma = 1.0;
+  RotationUpdate rotation_update = RotationUpdate::kSlerp;
+  // Constraints are visited in increasing level of their top node (root side first).
+  // Returns an empty string when valid, else what is wrong.
+  std::string validate() const;
+};
+
+struct IterationStats {
+  std::size_t iteration = 0;      // 1-based index of the iteration just run
+  std::size_t constraints = 0;    // constraints visited
+  double learning_rate = 0.0;
+};
+
+class TreeOptimizer {
+ public:
+  explicit TreeOptimizer(const TreeOptimizerOptions& options = {});
+
+  // Takes the graph (nodes, constraints, poses), builds the tree, the initial parameters and the
+  // preconditioner.  Resets the iteration counter.
+  void setGraph(const PoseGraph& graph, InitialGuess guess = InitialGuess::kChainOnTree);
+
+  // Online growth.  A new node needs an initial pose (e.g. its parent's pose times the odometry);
+  // ids of new nodes should increase (older ids work but trigger a tree rebuild).
+  void addNode(NodeId id, const Pose3& pose);
+  // Validated like PoseGraph::addConstraint (throws GraphError); returns the constraint's index.
+  std::size_t addConstraint(const Constraint& constraint);
+
+  // One full pass over all constraints; the learning rate decays with the iteration counter.
+  IterationStats iterate();
+  // One pass over the constraints affected by what was added since the last call of this function
+  // (the new constraints and every constraint touching a node on their tree paths), with the given
+  // iteration index for the learning rate.  Does not advance the iteration counter.
+  IterationStats iterateAffected(std::size_t learning_rate_iteration = 1);
+  // Forgets what counts as "new" for iterateAffected().
+  void clearAffected();
+
+  // The graph with the current pose estimates.
+  const PoseGraph& graph() const { return graph_; }
+  const ParameterTree& tree() const { return tree_; }
+  std::size_t iteration() const { return iteration_; }
+  const TreeOptimizerOptions& options() const { return options_; }
+  void setIteration(std::size_t iteration) { iteration_ = iteration; }
+
+ private:
+  struct Impl;
+  // (declared in tree_optimizer.cpp; kept out of the header to keep it small)
+  void rebuildParameters();
+  void updateConstraint(std::size_t c, double learning_rate);
+  void recomputePoses();
+  void recomputePreconditioner();
+  void addToPreconditioner(std::size_t c, double sign);
+  void sortConstraints();
+
+  TreeOptimizerOptions options_;
+  PoseGraph graph_;
+  ParameterTree tree_;
+  std::vector<Pose3> parameters_;        // parent_T_node per dense node index (root: world_T_root)
+  std::vector<double> rotation_weight_;  // preconditioner per node: sum of rotational information
+  std::vector<double> translation_weight_;
+  std::vector<double> constraint_rotation_info_;     // scalar information per constraint
+  std::vector<double> constraint_translation_info_;
+  std::vector<std::size_t> order_;       // constraints sorted by top-node level
+  bool order_dirty_ = true;
+  std::vector<std::size_t> new_constraints_;
+  std::vector<std::vector<std::size_t>> incident_;  // constraints per node
+  std::size_t iteration_ = 0;
+  // Scratch buffers reused by updateConstraint (no allocation in the hot loop).
+  std::vector<std::size_t> up_, down_;
+  std::vector<Pose3> path_poses_;
+  std::vector<double> path_fraction_;
+};
+
+}  // namespace toro

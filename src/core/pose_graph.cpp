@@ -1,0 +1,73 @@
+#include "toro_ros/core/pose_graph.h"
+
+#include <Eigen/Cholesky>
+#include <sstream>
+
+namespace toro {
+
+namespace {
+std::string describe(const Constraint& c) {
+  std::ostringstream s;
+  s << "constraint " << c.from << " -> " << c.to;
+  return s.str();
+}
+}  // namespace
+
+std::string checkInformation(const Matrix6& information) {
+  if (!information.allFinite()) return "information matrix has a non-finite entry";
+  const double scale = information.cwiseAbs().maxCoeff();
+  if (scale == 0.0) return "information matrix is zero";
+  const double asymmetry = (information - information.transpose()).cwiseAbs().maxCoeff();
+  if (asymmetry > 1e-9 * scale) {
+    std::ostringstream s;
+    s << "information matrix is not symmetric (largest |I - I^T| entry " << asymmetry << ")";
+    return s.str();
+  }
+  Eigen::LLT<Matrix6> llt(0.5 * (information + information.transpose()));
+  if (llt.info() != Eigen::Success) return "information matrix is not positive definite";
+  return {};
+}
+
+void PoseGraph::addNode(NodeId id, const Pose3& pose) {
+  if (index_.count(id)) {
+    throw GraphError("node " + std::to_string(id) + " already exists");
+  }
+  if (!pose.isFinite()) {
+    throw GraphError("node " + std::to_string(id) + " has a non-finite pose");
+  }
+  index_.emplace(id, nodes_.size());
+  nodes_.push_back(Node{id, pose});
+}
+
+std::string PoseGraph::validateConstraint(const Constraint& c) const {
+  if (c.from == c.to) return describe(c) + ": self-loop (both ends are node " + std::to_string(c.from) + ")";
+  if (!hasNode(c.from)) return describe(c) + ": unknown node " + std::to_string(c.from);
+  if (!hasNode(c.to)) return describe(c) + ": unknown node " + std::to_string(c.to);
+  if (!c.measurement.isFinite()) return describe(c) + ": measurement has a non-finite value";
+  const std::string info = checkInformation(c.information);
+  if (!info.empty()) return describe(c) + ": " + info;
+  return {};
+}
+
+std::size_t PoseGraph::addConstraint(const Constraint& constraint) {
+  const std::string reason = validateConstraint(constraint);
+  if (!reason.empty()) throw GraphError(reason);
+  constraints_.push_back(constraint);
+  return constraints_.size() - 1;
+}
+
+std::size_t PoseGraph::indexOf(NodeId id) const {
+  const auto it = index_.find(id);
+  if (it == index_.end()) throw GraphError("unknown node " + std::to_string(id));
+  return it->second;
+}
+
+void PoseGraph::clear() {
+  nodes_.clear();
+  constraints_.clear();
+  index_.clear();
+  fixed_.clear();
+  dimension_ = GraphDimension::k3D;
+}
+
+}  // namespace toro
