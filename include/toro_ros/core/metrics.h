@@ -1,0 +1,34 @@
+// Error measures of a pose graph at its current poses.  Definitions follow
+// ../shared/datasets/REFERENCE.md exactly, so figures compare with published ones of the same kind.
+#pragma once
+
+#include <cstddef>
+
+#include "toro_ros/core/pose_graph.h"
+
+namespace toro {
+
+// (B) g2o chi2: sum of e^T Omega e, e = [t(D); qvec(D) with w >= 0], D = Z^-1 X_i^-1 X_j (no 1/2).
+// For 2D graphs (GraphDimension::k2D) the 2D definition is used:
+// e = [Rz^T (R_i^T (t_j - t_i) - t_z); wrap(theta_j - theta_i - theta_z)] with the planar 3x3 information.
+double g2oChi2(const PoseGraph& graph);
+
+// (A) SE-Sync objective: sum kappa ||R_j - R_i R_z||_F^2 + tau ||t_j - t_i - R_i t_z||^2 with
+// 3D: tau = 3 / tr(Omega_t^-1), kappa = 3 / (2 tr(Omega_R^-1)); 2D: tau = 2 / tr(Omega_t^-1), kappa = Omega_thth.
+double seSyncObjective(const PoseGraph& graph);
+
+// (C) TORO's unweighted error: sum over constraints of (rotation angle of the residual)^2 +
+// |translation residual|^2, with the largest and mean rotational (rad) and translational residuals.
+struct ToroError {
+  double sum = 0.0;
+  double max_rotation = 0.0;
+  double max_translation = 0.0;
+  double mean_rotation = 0.0;
+  double mean_translation = 0.0;
+};
+ToroError toroError(const PoseGraph& graph);
+
+// Per-constraint g2o chi2 (same definition as g2oChi2), e.g. to colour loop closures by residual.
+double constraintChi2(const PoseGraph& graph, std::size_t constraint_index);
+
+}  // namespace toro
