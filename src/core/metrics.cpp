@@ -1,0 +1,142 @@
+#include "toro_ros/core/metrics.h"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace toro {
+
+namespace {
+
+using Matrix2 = Eigen::Matrix2d;
+using Vector2 = Eigen::Vector2d;
+
+// Angle in (-pi, pi].
+double wrapAngle(double a) {
+  a = std::remainder(a, 2.0 * M_PI);
+  return a <= -M_PI ? a + 2.0 * M_PI : a;
+}
+
+double yawOf(const Pose3& p) { return p.rollPitchYaw().z(); }
+
+Matrix2 planarRotation(double theta) {
+  Matrix2 r;
+  r << std::cos(theta), -std::sin(theta), std::sin(theta), std::cos(theta);
+  return r;
+}
+
+// The planar (x, y, theta) information of a lifted 2D constraint.  The internal yaw entries are
+// in quaternion-vector units (qz ~ theta / 2), so converting back to angle units divides the
+// theta-theta entry by 4 and the cross entries by 2 (the inverse of the readers' lifting).
+Eigen::Matrix3d planarInformation(const Matrix6& info) {
+  Eigen::Matrix3d out;
+  out << info(0, 0), info(0, 1), info(0, 5) / 2.0,  //
+      info(1, 0), info(1, 1), info(1, 5) / 2.0,     //
+      info(5, 0) / 2.0, info(5, 1) / 2.0, info(5, 5) / 4.0;
+  return out;
+}
+
+double chi2Of3D(const Pose3& xi, const Pose3& xj, const Constraint& c) {
+  const Pose3 delta = c.measurement.inverse() * (xi.inverse() * xj);
+  const Quaternion& q = delta.rotation();
+  const double sign = q.w() < 0.0 ? -1.0 : 1.0;  // the representative with w >= 0
+  Vector6 e;
+  e.head<3>() = delta.translation();
+  e.tail<3>() = sign * q.vec();
+  return e.dot(c.information * e);
+}
+
+double chi2Of2D(const Pose3& xi, const Pose3& xj, const Constraint& c) {
+  const double ti = yawOf(xi), tj = yawOf(xj), tz = yawOf(c.measurement);
+  const Vector2 dt = (xj.translation() - xi.translation()).head<2>();
+  const Vector2 local = planarRotation(ti).transpose() * dt - c.measurement.translation().head<2>();
+  Eigen::Vector3d e;
+  e.head<2>() = planarRotation(tz).transpose() * local;
+  e.z() = wrapAngle(tj - ti - tz);
+  return e.dot(planarInformation(c.information) * e);
+}
+
+double constraintChi2Of(const PoseGraph& graph, const Constraint& c) {
+  const Pose3& xi = graph.pose(c.from);
+  const Pose3& xj = graph.pose(c.to);
+  return graph.dimension() == GraphDimension::k2D ? chi2Of2D(xi, xj, c) : chi2Of3D(xi, xj, c);
+}
+
+// tr(M^-1) of a symmetric positive-definite block, via its Cholesky factor.
+template <int N>
+double traceOfInverse(const Eigen::Matrix<double, N, N>& m) {
+  const Eigen::LLT<Eigen::Matrix<double, N, N>> llt(m);
+  return llt.solve(Eigen::Matrix<double, N, N>::Identity()).trace();
+}
+
+double seSyncTerm3D(const Pose3& xi, const Pose3& xj, const Constraint& c) {
+  const double tau = 3.0 / traceOfInverse<3>(c.information.topLeftCorner<3, 3>());
+  const double kappa = 3.0 / (2.0 * traceOfInverse<3>(c.information.bottomRightCorner<3, 3>()));
+  const Matrix3 ri = xi.rotationMatrix();
+  const Matrix3 rot_residual = xj.rotationMatrix() - ri * c.measurement.rotationMatrix();
+  const Vector3 t_residual = xj.translation() - xi.translation() - ri * c.measurement.translation();
+  return kappa * rot_residual.squaredNorm() + tau * t_residual.squaredNorm();
+}
+
+double seSyncTerm2D(const Pose3& xi, const Pose3& xj, const Constraint& c) {
+  const Eigen::Matrix3d planar = planarInformation(c.information);
+  const double tau = 2.0 / traceOfInverse<2>(Matrix2(planar.topLeftCorner<2, 2>()));
+  const double kappa = planar(2, 2);
+  const Matrix2 ri = planarRotation(yawOf(xi));
+  const Matrix2 rot_residual = planarRotation(yawOf(xj)) - ri * planarRotation(yawOf(c.measurement));
+  const Vector2 t_residual = (xj.translation() - xi.translation()).head<2>() -
+                             ri * c.measurement.translation().head<2>();
+  return kappa * rot_residual.squaredNorm() + tau * t_residual.squaredNorm();
+}
+
+}  // namespace
+
+double g2oChi2(const PoseGraph& graph) {
+  double sum = 0.0;
+  for (const Constraint& c : graph.constraints()) sum += constraintChi2Of(graph, c);
+  return sum;
+}
+
+double constraintChi2(const PoseGraph& graph, std::size_t constraint_index) {
+  if (constraint_index >= graph.numConstraints()) {
+    throw std::out_of_range("constraintChi2: index " + std::to_string(constraint_index) +
+                            " out of range (graph has " + std::to_string(graph.numConstraints()) +
+                            " constraints)");
+  }
+  return constraintChi2Of(graph, graph.constraints()[constraint_index]);
+}
+
+double seSyncObjective(const PoseGraph& graph) {
+  const bool planar = graph.dimension() == GraphDimension::k2D;
+  double sum = 0.0;
+  for (const Constraint& c : graph.constraints()) {
+    const Pose3& xi = graph.pose(c.from);
+    const Pose3& xj = graph.pose(c.to);
+    sum += planar ? seSyncTerm2D(xi, xj, c) : seSyncTerm3D(xi, xj, c);
+  }
+  return sum;
+}
+
+ToroError toroError(const PoseGraph& graph) {
+  ToroError out;
+  for (const Constraint& c : graph.constraints()) {
+    // TORO's residual X_j^-1 X_i Z (identity when the constraint is met).
+    const Pose3 residual = graph.pose(c.to).inverse() * graph.pose(c.from) * c.measurement;
+    const double rotation = residual.angle();
+    const double translation = residual.translation().norm();
+    out.sum += rotation * rotation + translation * translation;
+    out.max_rotation = std::max(out.max_rotation, rotation);
+    out.max_translation = std::max(out.max_translation, translation);
+    out.mean_rotation += rotation;
+    out.mean_translation += translation;
+  }
+  if (graph.numConstraints() > 0) {
+    out.mean_rotation /= static_cast<double>(graph.numConstraints());
+    out.mean_translation /= static_cast<double>(graph.numConstraints());
+  }
+  return out;
+}
+
+}  // namespace toro
