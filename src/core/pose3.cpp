@@ -31,12 +31,20 @@ double Pose3::angle() const {
 }
 
 Quaternion quaternionFromRotationVector(const Vector3& rotation_vector) {
-  const double theta = rotation_vector.norm();
-  const double half = 0.5 * theta;
-  // sin(half)/theta, with its Taylor series near zero to avoid 0/0.
-  const double k = theta < 1e-8 ? 0.5 - theta * theta / 48.0 : std::sin(half) / theta;
-  return Quaternion(std::cos(half), k * rotation_vector.x(), k * rotation_vector.y(),
-                    k * rotation_vector.z());
+  const double theta2 = rotation_vector.squaredNorm();
+  double c, k;  // cos(theta/2) and sin(theta/2)/theta
+  if (theta2 < 0.01) {
+    // Taylor series: below 0.1 rad the truncation error is under 1e-16, it avoids 0/0 at zero and
+    // is several times faster than sin/cos in the optimiser's inner loop, where angles are small.
+    const double h2 = 0.25 * theta2;  // (theta/2)^2
+    c = 1.0 - h2 / 2.0 * (1.0 - h2 / 12.0 * (1.0 - h2 / 30.0 * (1.0 - h2 / 56.0)));
+    k = 0.5 * (1.0 - h2 / 6.0 * (1.0 - h2 / 20.0 * (1.0 - h2 / 42.0 * (1.0 - h2 / 72.0))));
+  } else {
+    const double theta = std::sqrt(theta2);
+    c = std::cos(0.5 * theta);
+    k = std::sin(0.5 * theta) / theta;
+  }
+  return Quaternion(c, k * rotation_vector.x(), k * rotation_vector.y(), k * rotation_vector.z());
 }
 
 Vector3 rotationVectorFromQuaternion(const Quaternion& q_in) {

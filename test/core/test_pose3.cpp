@@ -76,3 +76,13 @@ TEST(Pose3, SlerpFromIdentityComposes) {
   const Quaternion lhs = slerpFromIdentity(q, 0.3) * slerpFromIdentity(q, 0.5);
   EXPECT_LT(lhs.angularDistance(slerpFromIdentity(q, 0.8)), 1e-12);
 }
+
+TEST(Pose3, QuaternionFromRotationVectorSeriesMatchesTrigonometry) {
+  // The small-angle series branch (below 0.1 rad) must agree with sin/cos to double precision.
+  for (double angle : {1e-12, 1e-6, 1e-3, 0.05, 0.0999, 0.1001, 0.3}) {
+    const Vector3 axis = Vector3(0.3, -0.5, 0.8).normalized();
+    const Quaternion q = quaternionFromRotationVector(angle * axis);
+    EXPECT_NEAR(q.w(), std::cos(angle / 2), 1e-16) << angle;
+    EXPECT_LT((q.vec() - std::sin(angle / 2) * axis).norm(), 1e-16) << angle;
+  }
+}

@@ -54,10 +54,14 @@ class ParameterTree {
   // Number of times the incremental update fell back to a full rebuild (graphs whose ids are not
   // in time order); exposed for tests and diagnostics.
   std::size_t rebuilds() const { return rebuilds_; }
+  // Whether the smallest-neighbour rule spans the graph (see the class comment).
+  bool followsSmallestNeighbourRule() const { return normal_; }
 
  private:
   void setLevelsBelow(std::size_t node);
   void detach(std::size_t node);
+  void buildByGrowing(const PoseGraph& graph, const std::vector<std::size_t>& by_id);
+  void rebuildKeepingNeighbours(const PoseGraph& graph, std::vector<std::size_t>* reparented);
   // Smallest-id neighbour of `node` among all its neighbours (kNone if isolated).
   std::size_t smallestNeighbour(const PoseGraph& graph, std::size_t node) const;
 
@@ -67,6 +71,9 @@ class ParameterTree {
   // Neighbour lists (dense indices, parallel constraints repeated) kept for incremental updates.
   std::vector<std::vector<std::size_t>> neighbours_;
   std::size_t rebuilds_ = 0;
+  // True when the smallest-neighbour rule spans every component (the usual case); then additions
+  // are O(subtree) updates, otherwise each addition rebuilds.
+  bool normal_ = true;
 };
 
 }  // namespace toro

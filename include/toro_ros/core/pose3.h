@@ -62,6 +62,9 @@ class Pose3 {
 
   // Re-normalise the quaternion after many multiplications (drift control in long loops).
   void normalize() { rotation_.normalize(); }
+  // Cheap first-order re-normalisation, q *= (3 - |q|^2) / 2, for quaternions already within
+  // rounding error of unit length (it removes the drift of repeated products without a sqrt).
+  void renormalize() { rotation_.coeffs() *= 0.5 * (3.0 - rotation_.squaredNorm()); }
 
  private:
   Quaternion rotation_;

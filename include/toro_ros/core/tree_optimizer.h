@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstddef>
+#include <string>
 #include <vector>
 
 #include "toro_ros/core/parameter_tree.h"
@@ -27,8 +28,13 @@ enum class RotationUpdate {
 };
 
 struct TreeOptimizerOptions {
-  // Learning rate of iteration k is 1 / (gamma * k).
+  // Learning rate of iteration k is 1 / (gamma * k) for the rotational part of each update...
   double gamma = 1.0;
+  // ...and 1 / (translation_gamma * k) for the translational part.  Translation gets the larger
+  // rate because every rotational update re-creates translational error downstream (lever arms),
+  // which a rate decaying as fast as the rotational one cannot keep up with; 0.1 was chosen by
+  // measurement on sphere2500, parking-garage, smallGrid3D and sphere_bignoise (bench/results.md).
+  double translation_gamma = 0.1;
   RotationUpdate rotation_update = RotationUpdate::kSlerp;
   // Constraints are visited in increasing level of their top node (root side first).
   // Returns an empty string when valid, else what is wrong.
@@ -72,14 +78,20 @@ class TreeOptimizer {
   void setIteration(std::size_t iteration) { iteration_ = iteration; }
 
  private:
-  struct Impl;
-  // (declared in tree_optimizer.cpp; kept out of the header to keep it small)
-  void rebuildParameters();
+  void chainInitialGuess();
+  void parametersFromPoses();
   void updateConstraint(std::size_t c, double learning_rate);
+  void distributeRotation(std::size_t c, double learning_rate);
+  void distributeRotationNaively(std::size_t c, double learning_rate);
+  void distributeTranslation(std::size_t c, double learning_rate);
+  void writeBackParameters();
   void recomputePoses();
-  void recomputePreconditioner();
-  void addToPreconditioner(std::size_t c, double sign);
-  void sortConstraints();
+  // Preconditioner and visiting order, both from one walk over every constraint's path.
+  void refreshStructure();
+  void addToPreconditioner(std::size_t c);
+  void registerConstraint(std::size_t c);
+  std::vector<std::size_t> sortedByTopLevel(std::vector<std::size_t> constraints);
+  void runPass(const std::vector<std::size_t>& constraints, double learning_rate);
 
   TreeOptimizerOptions options_;
   PoseGraph graph_;
@@ -87,17 +99,23 @@ class TreeOptimizer {
   std::vector<Pose3> parameters_;        // parent_T_node per dense node index (root: world_T_root)
   std::vector<double> rotation_weight_;  // preconditioner per node: sum of rotational information
   std::vector<double> translation_weight_;
+  std::vector<std::size_t> from_index_, to_index_;  // dense endpoints per constraint
   std::vector<double> constraint_rotation_info_;     // scalar information per constraint
   std::vector<double> constraint_translation_info_;
   std::vector<std::size_t> order_;       // constraints sorted by top-node level
-  bool order_dirty_ = true;
+  std::vector<int> top_level_;           // level of each constraint's top node (refreshStructure)
+  bool structure_dirty_ = true;          // tree changed since refreshStructure()
+  std::vector<std::size_t> topological_order_;
   std::vector<std::size_t> new_constraints_;
   std::vector<std::vector<std::size_t>> incident_;  // constraints per node
   std::size_t iteration_ = 0;
+  double translation_rate_factor_ = 1.0;  // gamma / translation_gamma
   // Scratch buffers reused by updateConstraint (no allocation in the hot loop).
   std::vector<std::size_t> up_, down_;
-  std::vector<Pose3> path_poses_;
-  std::vector<double> path_fraction_;
+  std::size_t top_ = 0;
+  std::vector<Pose3> up_poses_, down_poses_;          // top_T_node for the path nodes
+  std::vector<double> up_share_, down_share_;         // signed fraction of the correction per node
+  std::vector<char> affected_mark_;
 };
 
 }  // namespace toro

@@ -1,0 +1,369 @@
+#include "toro_ros/core/tree_optimizer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace toro {
+
+namespace {
+
+constexpr std::size_t kNone = ParameterTree::kNone;
+
+// TORO weighs each constraint by one scalar per part: the smallest diagonal entry of the rotational
+// and translational information (a conservative stiffness).  Units cancel in the ratios used below.
+double smallestDiagonal(const Matrix6& m, int offset) {
+  return std::min({m(offset, offset), m(offset + 1, offset + 1), m(offset + 2, offset + 2)});
+}
+
+// Fraction of a constraint's error removed by one update: the learning rate times the constraint's
+// information over the stiffness of its path (Olson's preconditioned step, summed over the path),
+// never more than the whole error.
+double stepFraction(double learning_rate, double info, double weight_sum) {
+  return std::min(1.0, learning_rate * info * weight_sum);
+}
+
+double wrapAngle(double a) { return std::atan2(std::sin(a), std::cos(a)); }
+
+}  // namespace
+
+std::string TreeOptimizerOptions::validate() const {
+  if (!(gamma > 0.0) || !std::isfinite(gamma)) return "gamma must be a positive finite number";
+  if (!(translation_gamma > 0.0) || !std::isfinite(translation_gamma)) {
+    return "translation_gamma must be a positive finite number";
+  }
+  return {};
+}
+
+TreeOptimizer::TreeOptimizer(const TreeOptimizerOptions& options) : options_(options) {
+  const std::string error = options_.validate();
+  if (!error.empty()) throw std::invalid_argument("TreeOptimizerOptions: " + error);
+  translation_rate_factor_ = options_.gamma / options_.translation_gamma;
+}
+
+void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
+  graph_ = graph;
+  tree_.build(graph_);
+  const std::size_t n = graph_.numNodes();
+  incident_.assign(n, {});
+  from_index_.clear();
+  to_index_.clear();
+  constraint_rotation_info_.clear();
+  constraint_translation_info_.clear();
+  for (std::size_t c = 0; c < graph_.numConstraints(); ++c) registerConstraint(c);
+  rotation_weight_.assign(n, 0.0);
+  translation_weight_.assign(n, 0.0);
+  affected_mark_.assign(graph_.numConstraints(), 0);
+  topological_order_ = tree_.topologicalOrder();
+  parameters_.assign(n, Pose3());
+  if (guess == InitialGuess::kFromGraph) {
+    parametersFromPoses();
+  } else {
+    chainInitialGuess();
+  }
+  recomputePoses();
+  structure_dirty_ = true;
+  new_constraints_.clear();
+  iteration_ = 0;
+}
+
+void TreeOptimizer::registerConstraint(std::size_t c) {
+  const Constraint& k = graph_.constraints()[c];
+  from_index_.push_back(graph_.indexOf(k.from));
+  to_index_.push_back(graph_.indexOf(k.to));
+  incident_[from_index_.back()].push_back(c);
+  incident_[to_index_.back()].push_back(c);
+  constraint_translation_info_.push_back(smallestDiagonal(k.information, 0));
+  constraint_rotation_info_.push_back(smallestDiagonal(k.information, 3));
+}
+
+void TreeOptimizer::chainInitialGuess() {
+  for (std::size_t v : topological_order_) {
+    const std::size_t p = tree_.parent(v);
+    if (p == kNone) {
+      parameters_[v] = graph_.node(v).pose;  // a root keeps its given pose: it fixes the gauge
+      continue;
+    }
+    // The first constraint (in graph order) between the node and its parent defines the guess.
+    for (std::size_t c : incident_[v]) {
+      if (from_index_[c] == p) {
+        parameters_[v] = graph_.constraints()[c].measurement;
+        break;
+      }
+      if (to_index_[c] == p) {
+        parameters_[v] = graph_.constraints()[c].measurement.inverse();
+        break;
+      }
+    }
+  }
+}
+
+void TreeOptimizer::parametersFromPoses() {
+  for (std::size_t v = 0; v < graph_.numNodes(); ++v) {
+    const std::size_t p = tree_.parent(v);
+    parameters_[v] = p == kNone ? graph_.node(v).pose : relativePose(graph_.node(p).pose, graph_.node(v).pose);
+  }
+}
+
+void TreeOptimizer::recomputePoses() {
+  for (std::size_t v : topological_order_) {
+    const std::size_t p = tree_.parent(v);
+    graph_.setPoseAt(v, p == kNone ? parameters_[v] : graph_.node(p).pose * parameters_[v]);
+  }
+}
+
+void TreeOptimizer::addToPreconditioner(std::size_t c) {
+  top_level_[c] = tree_.level(tree_.path(from_index_[c], to_index_[c], up_, down_));
+  for (const auto* branch : {&up_, &down_}) {
+    for (std::size_t v : *branch) {
+      rotation_weight_[v] += constraint_rotation_info_[c];
+      translation_weight_[v] += constraint_translation_info_[c];
+    }
+  }
+}
+
+void TreeOptimizer::refreshStructure() {
+  std::fill(rotation_weight_.begin(), rotation_weight_.end(), 0.0);
+  std::fill(translation_weight_.begin(), translation_weight_.end(), 0.0);
+  top_level_.assign(graph_.numConstraints(), 0);
+  order_.resize(graph_.numConstraints());
+  for (std::size_t c = 0; c < graph_.numConstraints(); ++c) {
+    addToPreconditioner(c);
+    order_[c] = c;
+  }
+  // Root side first: updates near the root move large subtrees; later, deeper updates refine them.
+  std::stable_sort(order_.begin(), order_.end(),
+                   [&](std::size_t a, std::size_t b) { return top_level_[a] < top_level_[b]; });
+  structure_dirty_ = false;
+}
+
+IterationStats TreeOptimizer::iterate() {
+  if (structure_dirty_) refreshStructure();
+  ++iteration_;
+  const double learning_rate = 1.0 / (options_.gamma * static_cast<double>(iteration_));
+  runPass(order_, learning_rate);
+  return IterationStats{iteration_, order_.size(), learning_rate};
+}
+
+void TreeOptimizer::runPass(const std::vector<std::size_t>& constraints, double learning_rate) {
+  for (std::size_t c : constraints) updateConstraint(c, learning_rate);
+  recomputePoses();
+}
+
+void TreeOptimizer::updateConstraint(std::size_t c, double learning_rate) {
+  top_ = tree_.path(from_index_[c], to_index_[c], up_, down_);
+  if (top_ == kNone) return;  // ends in different trees: cannot happen for a constraint of the graph
+  // Poses of the path nodes in the top node's frame; the top node itself is the identity there.
+  up_poses_.resize(up_.size());
+  down_poses_.resize(down_.size());
+  for (std::size_t i = up_.size(); i-- > 0;) {
+    up_poses_[i] = i + 1 < up_.size() ? up_poses_[i + 1] * parameters_[up_[i]] : parameters_[up_[i]];
+  }
+  for (std::size_t i = down_.size(); i-- > 0;) {
+    down_poses_[i] = i + 1 < down_.size() ? down_poses_[i + 1] * parameters_[down_[i]] : parameters_[down_[i]];
+  }
+  if (options_.rotation_update == RotationUpdate::kSlerp) {
+    distributeRotation(c, learning_rate);
+  } else {
+    distributeRotationNaively(c, learning_rate);
+  }
+  distributeTranslation(c, learning_rate);
+  writeBackParameters();
+}
+
+namespace {
+
+// Fills the signed share of the correction that each path node takes: moving along the path from
+// the constraint's first end (share -u_top) over the top (share 0) to its second end (share
+// 1 - u_top), every node's share grows by its joint's weight / total weight.  A node's weight is
+// the inverse of its stiffness (the preconditioner), floored by this constraint's own information,
+// which the stiffness always includes when it is up to date.
+double computeShares(const std::vector<std::size_t>& up, const std::vector<std::size_t>& down,
+                     const std::vector<double>& stiffness, double own_information, std::vector<double>& up_share,
+                     std::vector<double>& down_share) {
+  up_share.resize(up.size());
+  down_share.resize(down.size());
+  double total = 0.0;
+  for (std::size_t i = up.size(); i-- > 0;) {
+    total += 1.0 / std::max(stiffness[up[i]], own_information);
+    up_share[i] = -total;
+  }
+  double down_total = 0.0;
+  for (std::size_t i = down.size(); i-- > 0;) {
+    down_total += 1.0 / std::max(stiffness[down[i]], own_information);
+    down_share[i] = down_total;
+  }
+  total += down_total;
+  for (double& s : up_share) s /= total;
+  for (double& s : down_share) s /= total;
+  return total;
+}
+
+}  // namespace
+
+void TreeOptimizer::distributeRotation(std::size_t c, double learning_rate) {
+  const Constraint& k = graph_.constraints()[c];
+  const Quaternion& qa = up_.empty() ? Quaternion::Identity() : up_poses_[0].rotation();
+  const Quaternion& qb = down_.empty() ? Quaternion::Identity() : down_poses_[0].rotation();
+  // Rotation that, applied on the left (in the top frame), takes b's orientation to a * Z.
+  const Vector3 error = rotationVectorFromQuaternion(qa * k.measurement.rotation() * qb.conjugate());
+  const double info = constraint_rotation_info_[c];
+  const double weight_sum = computeShares(up_, down_, rotation_weight_, info, up_share_, down_share_);
+  const double fraction = stepFraction(learning_rate, info, weight_sum);
+  // All partial corrections share one axis, so they commute and the two ends end up exactly
+  // `fraction` of the error apart; each parameter then absorbs the increment between its parent's
+  // correction and its own, conjugated into its parent's frame when written back (Eq. 19).
+  for (std::size_t i = 0; i < up_.size(); ++i) {
+    const Quaternion s = quaternionFromRotationVector(up_share_[i] * fraction * error);
+    up_poses_[i].setRotationUnchecked(s * up_poses_[i].rotation());
+  }
+  for (std::size_t i = 0; i < down_.size(); ++i) {
+    const Quaternion s = quaternionFromRotationVector(down_share_[i] * fraction * error);
+    down_poses_[i].setRotationUnchecked(s * down_poses_[i].rotation());
+  }
+}
+
+void TreeOptimizer::distributeRotationNaively(std::size_t c, double learning_rate) {
+  // The update the paper warns against (Fig. 2): add equal shares of the roll/pitch/yaw error to
+  // every parameter as if rotations commuted.  Kept for the benchmark and the test that shows it fails.
+  const Constraint& k = graph_.constraints()[c];
+  const Quaternion& qa = up_.empty() ? Quaternion::Identity() : up_poses_[0].rotation();
+  const Quaternion& qb = down_.empty() ? Quaternion::Identity() : down_poses_[0].rotation();
+  const Vector3 current = Pose3(qa.conjugate() * qb, Vector3::Zero()).rollPitchYaw();
+  const Vector3 wanted = k.measurement.rollPitchYaw();
+  Vector3 error;
+  for (int i = 0; i < 3; ++i) error[i] = wrapAngle(wanted[i] - current[i]);
+  const double info = constraint_rotation_info_[c];
+  const double weight_sum = computeShares(up_, down_, rotation_weight_, info, up_share_, down_share_);
+  const double fraction = stepFraction(learning_rate, info, weight_sum);
+  // Each joint's own share is the difference of consecutive cumulative shares.
+  const auto adjust = [&](const std::vector<std::size_t>& branch, const std::vector<double>& share,
+                          std::vector<Pose3>& poses, double sign) {
+    Quaternion above = Quaternion::Identity();
+    for (std::size_t i = branch.size(); i-- > 0;) {
+      const double own = std::abs(share[i]) - (i + 1 < branch.size() ? std::abs(share[i + 1]) : 0.0);
+      const Vector3 rpy = parameters_[branch[i]].rollPitchYaw() + sign * own * fraction * error;
+      const Quaternion q = Pose3::fromRollPitchYaw(0, 0, 0, rpy.x(), rpy.y(), rpy.z()).rotation();
+      above = (above * q).normalized();
+      poses[i].setRotationUnchecked(above);
+    }
+  };
+  adjust(up_, up_share_, up_poses_, -1.0);
+  adjust(down_, down_share_, down_poses_, 1.0);
+}
+
+void TreeOptimizer::distributeTranslation(std::size_t c, double learning_rate) {
+  const Constraint& k = graph_.constraints()[c];
+  const Pose3 top_T_a = up_.empty() ? Pose3() : up_poses_[0];
+  const Vector3 b = down_.empty() ? Vector3::Zero() : down_poses_[0].translation();
+  const Vector3 residual = top_T_a * k.measurement.translation() - b;
+  const double info = constraint_translation_info_[c];
+  const double weight_sum = computeShares(up_, down_, translation_weight_, info, up_share_, down_share_);
+  const double fraction = stepFraction(learning_rate * translation_rate_factor_, info, weight_sum);
+  for (std::size_t i = 0; i < up_.size(); ++i) {
+    up_poses_[i].setTranslation(up_poses_[i].translation() + (up_share_[i] * fraction) * residual);
+  }
+  for (std::size_t i = 0; i < down_.size(); ++i) {
+    down_poses_[i].setTranslation(down_poses_[i].translation() + (down_share_[i] * fraction) * residual);
+  }
+}
+
+void TreeOptimizer::writeBackParameters() {
+  // New parameter = (new pose of the parent)^-1 * (new pose), both in the top frame.
+  const auto write = [&](const std::vector<std::size_t>& branch, const std::vector<Pose3>& poses) {
+    for (std::size_t i = 0; i < branch.size(); ++i) {
+      Pose3& parameter = parameters_[branch[i]];
+      if (i + 1 == branch.size()) {
+        parameter = poses[i];  // the parent is the top node: the identity in its own frame
+      } else {
+        const Quaternion parent_inverse = poses[i + 1].rotation().conjugate();
+        parameter.setRotationUnchecked(parent_inverse * poses[i].rotation());
+        parameter.setTranslation(parent_inverse * (poses[i].translation() - poses[i + 1].translation()));
+      }
+      parameter.renormalize();
+    }
+  };
+  write(up_, up_poses_);
+  write(down_, down_poses_);
+}
+
+void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
+  graph_.addNode(id, pose);
+  const std::size_t v = graph_.numNodes() - 1;
+  tree_.addNode(graph_, v);
+  parameters_.push_back(pose);
+  incident_.emplace_back();
+  rotation_weight_.push_back(0.0);
+  translation_weight_.push_back(0.0);
+  topological_order_.push_back(v);
+}
+
+std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
+  const std::size_t c = graph_.addConstraint(constraint);
+  registerConstraint(c);
+  affected_mark_.push_back(0);
+  top_level_.push_back(0);
+  std::vector<std::size_t> reparented;
+  tree_.addConstraint(graph_, c, &reparented);
+  bool tree_reshaped = false;
+  for (std::size_t v : reparented) {
+    const std::size_t p = tree_.parent(v);
+    parameters_[v] = p == kNone ? graph_.node(v).pose : relativePose(graph_.node(p).pose, graph_.node(v).pose);
+    // A leaf that was a lone root (a new keyframe being attached) changes no other path.
+    if (!(reparented.size() == 1 && tree_.children(v).empty())) tree_reshaped = true;
+  }
+  if (tree_reshaped) {
+    topological_order_ = tree_.topologicalOrder();
+    structure_dirty_ = true;
+  }
+  if (!structure_dirty_) {
+    addToPreconditioner(c);
+    const auto pos = std::upper_bound(order_.begin(), order_.end(), top_level_[c],
+                                      [&](int level, std::size_t other) { return level < top_level_[other]; });
+    order_.insert(pos, c);
+  } else {
+    // Keep the stiffness of the new path up to date until the next full refresh.
+    addToPreconditioner(c);
+  }
+  new_constraints_.push_back(c);
+  return c;
+}
+
+std::vector<std::size_t> TreeOptimizer::sortedByTopLevel(std::vector<std::size_t> constraints) {
+  for (std::size_t c : constraints) {
+    top_level_[c] = tree_.level(tree_.topNode(from_index_[c], to_index_[c]));
+  }
+  std::stable_sort(constraints.begin(), constraints.end(),
+                   [&](std::size_t a, std::size_t b) { return top_level_[a] < top_level_[b]; });
+  return constraints;
+}
+
+IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteration) {
+  std::vector<std::size_t> affected;
+  const auto mark = [&](std::size_t c) {
+    if (!affected_mark_[c]) {
+      affected_mark_[c] = 1;
+      affected.push_back(c);
+    }
+  };
+  for (std::size_t c : new_constraints_) {
+    mark(c);
+    tree_.path(from_index_[c], to_index_[c], up_, down_);
+    for (const auto* branch : {&up_, &down_}) {
+      for (std::size_t v : *branch) {
+        for (std::size_t other : incident_[v]) mark(other);
+      }
+    }
+  }
+  for (std::size_t c : affected) affected_mark_[c] = 0;
+  new_constraints_.clear();
+  affected = sortedByTopLevel(std::move(affected));
+  const double learning_rate =
+      1.0 / (options_.gamma * static_cast<double>(std::max<std::size_t>(1, learning_rate_iteration)));
+  runPass(affected, learning_rate);
+  return IterationStats{learning_rate_iteration, affected.size(), learning_rate};
+}
+
+void TreeOptimizer::clearAffected() { new_constraints_.clear(); }
+
+}  // namespace toro
