@@ -1,6 +1,7 @@
 #include "toro_ros/core/pose_graph.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <sstream>
 
 namespace toro {
@@ -26,6 +27,25 @@ std::string checkInformation(const Matrix6& information) {
   Eigen::LLT<Matrix6> llt(0.5 * (information + information.transpose()));
   if (llt.info() != Eigen::Success) return "information matrix is not positive definite";
   return {};
+}
+
+bool repairInformation(Matrix6& information) {
+  if (!information.allFinite()) return false;
+  const double scale = information.cwiseAbs().maxCoeff();
+  if (scale == 0.0) return false;
+  if ((information - information.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) return false;
+  const Matrix6 symmetric = 0.5 * (information + information.transpose());
+  if (Eigen::LLT<Matrix6>(symmetric).info() == Eigen::Success) return false;
+  const Eigen::SelfAdjointEigenSolver<Matrix6> eigen(symmetric);
+  if (eigen.info() != Eigen::Success) return false;
+  const double largest = eigen.eigenvalues().maxCoeff();
+  if (!(largest > 0.0)) return false;
+  const Vector6 clamped = eigen.eigenvalues().cwiseMax(kRepairEigenvalueFraction * largest);
+  Matrix6 repaired = eigen.eigenvectors() * clamped.asDiagonal() * eigen.eigenvectors().transpose();
+  // Rounding in the product leaves tiny asymmetries; mirror so the result is exactly symmetric.
+  repaired = (0.5 * (repaired + repaired.transpose())).eval();
+  information = repaired;
+  return true;
 }
 
 void PoseGraph::addNode(NodeId id, const Pose3& pose) {

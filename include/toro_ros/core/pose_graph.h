@@ -88,4 +88,15 @@ class PoseGraph {
 // relative tolerance, or not positive definite); empty if fine.
 std::string checkInformation(const Matrix6& information);
 
+// Fraction of the largest eigenvalue that repairInformation gives to the eigenvalues it raises.
+constexpr double kRepairEigenvalueFraction = 1e-6;
+
+// Projects a symmetric information matrix that is not positive definite (real data has 6x6
+// matrices whose 3x3 blocks are positive definite while the whole is indefinite) onto the nearest
+// positive-definite matrix: eigenvalues below kRepairEigenvalueFraction * (largest eigenvalue)
+// are raised to that value, the eigenvectors kept.  Returns true if it changed the matrix; false
+// (matrix untouched) if it was already positive definite or cannot be repaired: a non-finite
+// entry, asymmetry (as checkInformation judges it), or no positive eigenvalue.
+bool repairInformation(Matrix6& information);
+
 }  // namespace toro

@@ -1,0 +1,616 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <random>
+#include <sstream>
+
+#include <unistd.h>
+
+#include "toro_ros/core/graph_io.h"
+
+using namespace toro;
+
+namespace {
+
+PoseGraph readText(const std::string& text, const std::string& name, const ReadOptions& options = {},
+                   ReadReport* report = nullptr) {
+  std::istringstream in(text);
+  return readGraph(in, name, options, report);
+}
+
+std::string writeText(const PoseGraph& graph, GraphFormat format,
+                      ToroInformationOrder order = ToroInformationOrder::kTranslationFirst) {
+  std::ostringstream out;
+  WriteOptions options;
+  options.format = format;
+  options.toro_information_order = order;
+  writeGraph(graph, out, options);
+  return out.str();
+}
+
+// The ParseError a text produces (fails the test if none).
+ParseError parseError(const std::string& text, const std::string& name, const ReadOptions& options = {}) {
+  try {
+    readText(text, name, options);
+  } catch (const ParseError& e) {
+    return e;
+  }
+  ADD_FAILURE() << "no ParseError for:\n" << text;
+  return ParseError(name, 0, "none");
+}
+
+#define EXPECT_PARSE_ERROR(text, name, line_number, wording)                               \
+  do {                                                                                     \
+    const ParseError e_ = parseError(text, name);                                          \
+    EXPECT_EQ(e_.line(), std::size_t(line_number)) << e_.what();                           \
+    EXPECT_NE(std::string(e_.what()).find(wording), std::string::npos) << e_.what();       \
+    EXPECT_EQ(std::string(e_.what()).rfind(std::string(name) + ":", 0), 0u) << e_.what(); \
+  } while (0)
+
+Matrix6 diag6(double a, double b, double c, double d, double e, double f) {
+  Vector6 v;
+  v << a, b, c, d, e, f;
+  return v.asDiagonal();
+}
+
+const char* kIdentityInfo3 = " 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1";
+
+}  // namespace
+
+TEST(GraphIo, G2o3dValues) {
+  const std::string text =
+      "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\n"
+      "VERTEX_SE3:QUAT 1 1.5 -2 3 0 0 0 2\n"  // unnormalised quaternion
+      "EDGE_SE3:QUAT 0 1 1 2 3 0 0 0.6 0.8 "
+      "10 1 2 3 4 5 20 6 7 8 9 30 10 11 12 40 13 14 50 15 60\n"
+      "FIX 0\n";
+  ReadReport report;
+  const PoseGraph g = readText(text, "a.g2o", {}, &report);
+  ASSERT_EQ(g.numNodes(), 2u);
+  ASSERT_EQ(g.numConstraints(), 1u);
+  EXPECT_EQ(g.dimension(), GraphDimension::k3D);
+  EXPECT_EQ(g.pose(1).translation(), Vector3(1.5, -2, 3));
+  EXPECT_DOUBLE_EQ(g.pose(1).rotation().w(), 1.0);  // normalised
+  const Constraint& c = g.constraints()[0];
+  EXPECT_EQ(c.from, 0);
+  EXPECT_EQ(c.to, 1);
+  EXPECT_EQ(c.measurement.translation(), Vector3(1, 2, 3));
+  EXPECT_DOUBLE_EQ(c.measurement.rotation().z(), 0.6);
+  EXPECT_DOUBLE_EQ(c.measurement.rotation().w(), 0.8);
+  // Upper triangle row by row, mirrored, already in the internal convention.
+  EXPECT_EQ(c.information(0, 0), 10);
+  EXPECT_EQ(c.information(0, 5), 5);
+  EXPECT_EQ(c.information(5, 0), 5);
+  EXPECT_EQ(c.information(1, 2), 6);
+  EXPECT_EQ(c.information(3, 3), 40);
+  EXPECT_EQ(c.information(4, 5), 15);
+  EXPECT_EQ(c.information(5, 5), 60);
+  ASSERT_EQ(g.fixedNodes().size(), 1u);
+  EXPECT_EQ(g.fixedNodes()[0], 0);
+  EXPECT_EQ(report.format, GraphFormat::kG2o);
+  EXPECT_EQ(report.vertices, 2u);
+  EXPECT_EQ(report.edges, 1u);
+  EXPECT_EQ(report.fixed, 1u);
+  EXPECT_EQ(report.lines, 4u);
+  EXPECT_TRUE(report.has_vertices);
+}
+
+TEST(GraphIo, G2o2dLiftedAndPlanarQuadraticFormKept) {
+  const std::string text =
+      "VERTEX_SE2 0 0 0 0\n"
+      "VERTEX_SE2 1 1 2 0.5\n"
+      "EDGE_SE2 0 1 1 2 0.5 10 1 2 20 3 30\n";  // xx xy xθ yy yθ θθ
+  const PoseGraph g = readText(text, "a.g2o");
+  EXPECT_EQ(g.dimension(), GraphDimension::k2D);
+  EXPECT_NEAR(g.pose(1).rollPitchYaw().z(), 0.5, 1e-15);
+  EXPECT_EQ(g.pose(1).translation(), Vector3(1, 2, 0));
+  const Matrix6& I = g.constraints()[0].information;
+  Matrix6 expected = Matrix6::Zero();
+  expected(0, 0) = 10;
+  expected(0, 1) = expected(1, 0) = 1;
+  expected(1, 1) = 20;
+  expected(0, 5) = expected(5, 0) = 2 * 2;  // cross x2
+  expected(1, 5) = expected(5, 1) = 2 * 3;
+  expected(5, 5) = 4 * 30;                  // rotation x4
+  expected(2, 2) = 15;                      // mean of xx, yy
+  expected(3, 3) = expected(4, 4) = 4 * 30; // roll/pitch = θθ
+  EXPECT_EQ(I, expected);
+  // For a planar residual (ex, ey, dθ) the internal error (ex, ey, 0, 0, 0, sin(dθ/2)) weighs
+  // (nearly) what the planar information gives: the chi2 is kept.
+  const double ex = 0.01, ey = -0.02, dth = 1e-3;
+  Vector6 e;
+  e << ex, ey, 0, 0, 0, std::sin(dth / 2);
+  const Eigen::Vector3d p(ex, ey, dth);
+  Eigen::Matrix3d planar;
+  planar << 10, 1, 2, 1, 20, 3, 2, 3, 30;
+  EXPECT_NEAR(e.dot(I * e), p.dot(planar * p), 1e-9);
+}
+
+TEST(GraphIo, ToroInformationOrderBothOptions) {
+  // diag(1..6) plus m01 = 0.1 (first-first pair) and m04 = 0.2 (first-block with index 4).
+  const std::string text =
+      "VERTEX3 0 0 0 0 0 0 0\n"
+      "VERTEX3 1 1 2 3 0.1 -0.2 0.3\n"
+      "EDGE3 0 1 1 2 3 0.1 -0.2 0.3 1 0.1 0 0 0.2 0 2 0 0 0 0 3 0 0 0 4 0 0 5 0 6\n";
+  ReadOptions options;
+  const PoseGraph t = readText(text, "a.graph", options);
+  Matrix6 expected_t = diag6(1, 2, 3, 4 * 4, 4 * 5, 4 * 6);
+  expected_t(0, 1) = expected_t(1, 0) = 0.1;        // x-y
+  expected_t(0, 4) = expected_t(4, 0) = 2 * 0.2;    // x-pitch cross
+  EXPECT_EQ(t.constraints()[0].information, expected_t);
+
+  options.toro_information_order = ToroInformationOrder::kRotationFirst;
+  const PoseGraph r = readText(text, "a.graph", options);
+  Matrix6 expected_r = diag6(4, 5, 6, 4 * 1, 4 * 2, 4 * 3);
+  expected_r(3, 4) = expected_r(4, 3) = 4 * 0.1;    // roll-pitch
+  expected_r(1, 3) = expected_r(3, 1) = 2 * 0.2;    // y-roll cross
+  EXPECT_EQ(r.constraints()[0].information, expected_r);
+
+  // Poses: x y z roll pitch yaw with R = Rz Ry Rx.
+  const Pose3 expected_pose = Pose3::fromRollPitchYaw(1, 2, 3, 0.1, -0.2, 0.3);
+  EXPECT_LT((t.pose(1).inverse() * expected_pose).angle(), 1e-15);
+  EXPECT_EQ(t.pose(1).translation(), Vector3(1, 2, 3));
+  EXPECT_LT((t.constraints()[0].measurement.rollPitchYaw() - Vector3(0.1, -0.2, 0.3)).norm(), 1e-15);
+}
+
+TEST(GraphIo, Toro2dOrderShortTagsAndSkippedTags) {
+  const std::string text =
+      "# a comment\n"
+      "VERTEX2 0 0 0 0\n"
+      "VERTEX 1 1 2 0.5\n"
+      "EDGE2 0 1 1 2 0.5 10 1 20 30 2 3\n"  // xx xy yy θθ xθ yθ
+      "EDGE 1 0 -1 -2 -0.5 10 1 20 30 2 3\n"
+      "EQUIV 0 1\n"
+      "\n"
+      "EQUIV 1 0\n";
+  ReadReport report;
+  const PoseGraph g = readText(text, "w.graph", {}, &report);
+  EXPECT_EQ(g.dimension(), GraphDimension::k2D);
+  ASSERT_EQ(g.numConstraints(), 2u);
+  const Matrix6& I = g.constraints()[0].information;
+  EXPECT_EQ(I(0, 0), 10);
+  EXPECT_EQ(I(0, 1), 1);
+  EXPECT_EQ(I(1, 1), 20);
+  EXPECT_EQ(I(5, 5), 120);
+  EXPECT_EQ(I(0, 5), 4);
+  EXPECT_EQ(I(1, 5), 6);
+  EXPECT_EQ(report.skipped_tags.size(), 1u);
+  EXPECT_EQ(report.skipped_tags.at("EQUIV"), 2u);
+  EXPECT_EQ(report.comment_lines, 1u);
+  EXPECT_EQ(report.lines, 8u);
+  EXPECT_EQ(report.format, GraphFormat::kToro);
+}
+
+TEST(GraphIo, FormatDetectedFromContentAndExtension) {
+  ReadReport report;
+  readText("# x\nFOO 1\nEDGE3 0 1 1 0 0 0 0 0\n", "data.txt", {}, &report);
+  EXPECT_EQ(report.format, GraphFormat::kToro);
+  EXPECT_EQ(report.skipped_tags.at("FOO"), 1u);
+  readText("VERTEX_SE2 0 0 0 0\n", "data.txt", {}, &report);
+  EXPECT_EQ(report.format, GraphFormat::kG2o);
+  // A tag of the other format is an error, not a silent skip.
+  EXPECT_PARSE_ERROR("VERTEX3 0 0 0 0 0 0 0\n", "x.g2o", 1, "VERTEX3: a TORO tag, but the file is read as g2o (by its extension)");
+  EXPECT_PARSE_ERROR("EDGE3 0 1 1 0 0 0 0 0\nVERTEX_SE2 0 0 0 0\n", "x.txt", 2, "a g2o tag, but the file is read as TORO");
+  ReadOptions g2o;
+  g2o.format = GraphFormat::kG2o;
+  EXPECT_THROW(readText("VERTEX3 0 0 0 0 0 0 0\n", "x.graph", g2o), ParseError);
+}
+
+TEST(GraphIo, EmptyFileIsAnEmptyGraph) {
+  ReadReport report;
+  const PoseGraph g = readText("", "empty.g2o", {}, &report);
+  EXPECT_TRUE(g.empty());
+  EXPECT_TRUE(report.emptyGraph());
+  EXPECT_FALSE(report.has_vertices);
+  EXPECT_NE(describeReport(report).find("empty graph"), std::string::npos);
+  readText("\n  \n# only a comment\r\n", "blank.g2o", {}, &report);
+  EXPECT_TRUE(report.emptyGraph());
+  EXPECT_EQ(report.lines, 3u);
+}
+
+TEST(GraphIo, EdgesWithoutVerticesAndWithoutInformation) {
+  ReadReport report;
+  const PoseGraph g =
+      readText("VERTEX3 5 0 0 0 0 0 0\nEDGE3 7 5 1 0 0 0 0 0\nEDGE3 5 3 1 0 0 0 0 0\n", "a.txt", {}, &report);
+  ASSERT_EQ(g.numNodes(), 3u);
+  EXPECT_EQ(g.nodes()[0].id, 5);  // VERTEX nodes first, then the missing ones by id
+  EXPECT_EQ(g.nodes()[1].id, 3);
+  EXPECT_EQ(g.nodes()[2].id, 7);
+  EXPECT_EQ(report.nodes_without_vertex, (std::vector<NodeId>{3, 7}));
+  EXPECT_TRUE(g.pose(7).translation().isZero());
+  EXPECT_TRUE(report.has_vertices);
+  EXPECT_EQ(report.edges_without_information, 2u);
+  EXPECT_EQ(g.constraints()[0].information, Matrix6::Identity());
+
+  readText("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n", "a.g2o", {}, &report);
+  EXPECT_FALSE(report.has_vertices);
+  EXPECT_EQ(report.nodes_without_vertex.size(), 2u);
+}
+
+TEST(GraphIo, MalformedTooFewAndTooManyFields) {
+  EXPECT_PARSE_ERROR("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n"
+                     "EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 0 0\n",
+                     "sphere.g2o", 3, "sphere.g2o:3: EDGE_SE3:QUAT: expected 30 fields, got 12");
+  EXPECT_PARSE_ERROR("VERTEX2 0 0 0 0 9\n", "w.graph", 1, "VERTEX2: expected 4 fields, got 5");
+  EXPECT_PARSE_ERROR("EDGE3 0 1 1 2 3\n", "w.graph", 1, "EDGE3: expected 29 fields (or 8 without an information matrix), got 5");
+  EXPECT_PARSE_ERROR("FIX\n", "w.g2o", 1, "FIX: expected at least 1 field");
+}
+
+TEST(GraphIo, MalformedNotANumber) {
+  EXPECT_PARSE_ERROR("\n\nEDGE_SE3:QUAT 0 1 1 2 3 0 0 0 abc" + std::string(kIdentityInfo3) + "\n", "sphere.g2o", 3,
+                     "sphere.g2o:3: EDGE_SE3:QUAT field 9 (qw): 'abc' is not a number");
+  EXPECT_PARSE_ERROR("VERTEX_SE2 1.5 0 0 0\n", "a.g2o", 1, "VERTEX_SE2 field 1 (id): '1.5' is not an integer id");
+  EXPECT_PARSE_ERROR("EDGE2 0 1 1 0 0 1 0 1 1 1x 0\n", "a.graph", 1, "EDGE2 field 10 (m02): '1x' is not a number");
+}
+
+TEST(GraphIo, MalformedNonFinite) {
+  EXPECT_PARSE_ERROR("VERTEX3 0 0 nan 0 0 0 0\n", "a.graph", 1, "VERTEX3 field 3 (y): 'nan' is not finite");
+  EXPECT_PARSE_ERROR("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 inf 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n", "a.g2o", 1,
+                     "EDGE_SE3:QUAT field 10 (I11): 'inf' is not finite");
+  EXPECT_PARSE_ERROR("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1e999\n", "a.g2o", 1, "field 8 (qw): '1e999' is out of the double range");
+  EXPECT_PARSE_ERROR("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 0\n", "a.g2o", 1, "the quaternion is zero");
+}
+
+TEST(GraphIo, MalformedDuplicateVertexAndSelfLoop) {
+  EXPECT_PARSE_ERROR("VERTEX_SE2 5 0 0 0\nVERTEX_SE2 6 0 0 0\nVERTEX_SE2 5 1 0 0\n", "a.g2o", 3,
+                     "duplicate VERTEX id 5 (first on line 1)");
+  EXPECT_PARSE_ERROR("VERTEX3 3 0 0 0 0 0 0\nEDGE3 3 3 1 0 0 0 0 0\n", "a.graph", 2,
+                     "EDGE3: constraint 3 -> 3: self-loop");
+}
+
+TEST(GraphIo, MalformedMixed2dAnd3d) {
+  EXPECT_PARSE_ERROR("VERTEX_SE2 0 0 0 0\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n", "a.g2o", 2,
+                     "VERTEX_SE3:QUAT: a 3D record in a 2D graph (line 1 is 2D)");
+  EXPECT_PARSE_ERROR("EDGE3 0 1 1 0 0 0 0 0\nEDGE2 0 1 1 0 0 1 0 1 1 0 0\n", "a.graph", 2,
+                     "EDGE2: a 2D record in a 3D graph");
+}
+
+TEST(GraphIo, MalformedFixOfUnknownNode) {
+  EXPECT_PARSE_ERROR("VERTEX_SE2 0 0 0 0\nFIX 0 4\n", "a.g2o", 2, "FIX field 2 (id): unknown node 4");
+}
+
+TEST(GraphIo, AsymmetricInformationCannotComeFromAFileAndIsNotRepaired) {
+  // Every format stores the upper triangle only; the reader mirrors it (TORO's own 3D loader did
+  // not, leaving zeros below the diagonal).
+  const PoseGraph g = readText(std::string("EDGE3 0 1 1 0 0 0 0 0 1 0.5 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n"),
+                               "a.graph");
+  EXPECT_EQ(g.constraints()[0].information(1, 0), 0.5);
+  Matrix6 asymmetric = Matrix6::Identity();
+  asymmetric(0, 1) = 0.5;
+  EXPECT_FALSE(repairInformation(asymmetric));
+  EXPECT_NE(checkInformation(asymmetric).find("not symmetric"), std::string::npos);
+}
+
+TEST(GraphIo, IndefiniteInformationRefusedOrRepaired) {
+  // Both 3x3 blocks are the identity (positive definite), the x-roll coupling makes the whole
+  // indefinite: eigenvalues 3 and -1 on (x + roll, x - roll).
+  const std::string line = "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 1 0 0 2 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n";
+  const std::string text = "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n" + line + line;
+  ReadOptions off;
+  off.repair_information = false;
+  const ParseError e = parseError(text, "cubicle.g2o", off);
+  EXPECT_EQ(e.line(), 3u);
+  EXPECT_NE(std::string(e.what()).find("cubicle.g2o:3: EDGE_SE3:QUAT: constraint 0 -> 1: information matrix is "
+                                       "not positive definite (information repair is off)"),
+            std::string::npos)
+      << e.what();
+
+  ReadReport report;
+  const PoseGraph g = readText(text, "cubicle.g2o", {}, &report);
+  EXPECT_EQ(report.repaired_information, 2u);
+  EXPECT_EQ(report.repaired_lines, (std::vector<std::size_t>{3, 4}));
+  const Matrix6& I = g.constraints()[0].information;
+  EXPECT_TRUE(checkInformation(I).empty());
+  // The positive eigen-direction is kept, the negative one raised to the small floor.
+  Vector6 plus = Vector6::Zero(), minus = Vector6::Zero();
+  plus(0) = plus(3) = std::sqrt(0.5);
+  minus(0) = std::sqrt(0.5);
+  minus(3) = -std::sqrt(0.5);
+  EXPECT_NEAR(plus.dot(I * plus), 3.0, 1e-12);
+  EXPECT_NEAR(minus.dot(I * minus), 3.0 * kRepairEigenvalueFraction, 1e-12);
+  EXPECT_NEAR(I(1, 1), 1.0, 1e-12);
+  EXPECT_NE(describeReport(report).find("2 information matrices not positive definite, repaired (lines 3 4)"),
+            std::string::npos)
+      << describeReport(report);
+}
+
+TEST(GraphIo, NegativeDefiniteInformationCannotBeRepaired) {
+  EXPECT_PARSE_ERROR("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 -1 0 0 0 0 0 -1 0 0 0 0 -1 0 0 0 -1 0 0 -1 0 -1\n", "a.g2o", 1,
+                     "EDGE_SE3:QUAT: constraint 0 -> 1: information matrix is not positive definite");
+}
+
+TEST(GraphIo, MissingFileAndDirectory) {
+  try {
+    readGraph("/nonexistent/dir/graph.g2o");
+    FAIL() << "no error";
+  } catch (const ParseError& e) {
+    EXPECT_EQ(e.line(), 0u);
+    EXPECT_EQ(std::string(e.what()), "/nonexistent/dir/graph.g2o: cannot open for reading: No such file or directory");
+  }
+  EXPECT_THROW(readGraph(std::filesystem::temp_directory_path().string()), ParseError);
+}
+
+TEST(GraphIo, GarbageBinaryAndNonTagLines) {
+  std::string garbage = "VERTEX_SE2 0 0 0 0\n";
+  garbage += std::string("\x7f" "ELF\x02\x01\x01\0\0\0", 10);
+  EXPECT_PARSE_ERROR(garbage, "a.out", 2, "binary data (byte 0x7f at column 1): not a text graph file");
+  EXPECT_PARSE_ERROR("1 2 3\n", "a.g2o", 1, "'1' is not a tag");
+  EXPECT_PARSE_ERROR("\xc3\xa9t\xc3\xa9 1\n", "a.g2o", 1, "is not a tag");
+}
+
+// ---- round trips -----------------------------------------------------------------------------
+
+namespace {
+
+Matrix6 randomInformation(std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Matrix6 a;
+  for (int i = 0; i < 36; ++i) a(i) = u(rng);
+  const Matrix6 m = a * a.transpose() + Matrix6::Identity();
+  return 0.5 * (m + m.transpose());  // exactly symmetric, as a file can only express
+}
+
+PoseGraph randomGraph(std::mt19937& rng, bool planar) {
+  std::normal_distribution<double> n(0.0, 1.0);
+  PoseGraph g;
+  for (NodeId id = 0; id < 6; ++id) {
+    const Pose3 p = planar ? Pose3::fromRollPitchYaw(n(rng), n(rng), 0, 0, 0, n(rng))
+                           : Pose3::fromAngleAxis(Vector3(n(rng), n(rng), n(rng)), Vector3(n(rng), n(rng), n(rng)));
+    g.addNode(id * 3, p);
+  }
+  for (NodeId k = 0; k < 10; ++k) {
+    Constraint c;
+    c.from = 3 * (k % 6);
+    c.to = 3 * ((k * 5 + 1) % 6);
+    if (c.from == c.to) c.to = 3 * ((k + 1) % 6);
+    c.measurement = relativePose(g.pose(c.from), g.pose(c.to)) *
+                    Pose3::fromRollPitchYaw(0.1 * n(rng), 0.1 * n(rng), planar ? 0 : 0.1 * n(rng), 0, 0, 0.1 * n(rng));
+    if (planar) {
+      Eigen::Matrix3d a = Eigen::Matrix3d::Random();
+      Eigen::Matrix3d p = a * a.transpose() + Eigen::Matrix3d::Identity();
+      p = (0.5 * (p + p.transpose())).eval();
+      Matrix6 lifted = Matrix6::Zero();
+      const int idx[3] = {0, 1, 5};
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) lifted(idx[i], idx[j]) = p(i, j) * (i == 2 ? 2 : 1) * (j == 2 ? 2 : 1);
+      lifted(2, 2) = 0.5 * (p(0, 0) + p(1, 1));
+      lifted(3, 3) = lifted(4, 4) = 4 * p(2, 2);
+      c.information = lifted;
+    } else {
+      c.information = randomInformation(rng);
+    }
+    g.addConstraint(c);
+  }
+  if (planar) g.setDimension(GraphDimension::k2D);
+  g.addFixed(0);
+  return g;
+}
+
+void expectSameStructure(const PoseGraph& a, const PoseGraph& b) {
+  ASSERT_EQ(a.numNodes(), b.numNodes());
+  ASSERT_EQ(a.numConstraints(), b.numConstraints());
+  EXPECT_EQ(a.dimension(), b.dimension());
+  for (std::size_t i = 0; i < a.numNodes(); ++i) EXPECT_EQ(a.node(i).id, b.node(i).id);
+  for (std::size_t k = 0; k < a.numConstraints(); ++k) {
+    EXPECT_EQ(a.constraints()[k].from, b.constraints()[k].from);
+    EXPECT_EQ(a.constraints()[k].to, b.constraints()[k].to);
+    EXPECT_EQ(a.constraints()[k].information, b.constraints()[k].information) << "constraint " << k;
+  }
+}
+
+void expectPosesNear(const Pose3& a, const Pose3& b, double tol) {
+  EXPECT_LT((a.inverse() * b).angle(), tol);
+  EXPECT_LT((a.translation() - b.translation()).norm(), tol);
+}
+
+}  // namespace
+
+TEST(GraphIo, RoundTripG2o3dIsBitwise) {
+  std::mt19937 rng(7);
+  const PoseGraph original = randomGraph(rng, false);
+  const PoseGraph a = readText(writeText(original, GraphFormat::kG2o), "a.g2o");
+  const std::string text = writeText(a, GraphFormat::kG2o);
+  const PoseGraph b = readText(text, "b.g2o");
+  expectSameStructure(a, b);
+  expectSameStructure(original, a);
+  for (std::size_t i = 0; i < a.numNodes(); ++i) {
+    EXPECT_EQ(a.node(i).pose.rotation().coeffs(), b.node(i).pose.rotation().coeffs());
+    EXPECT_EQ(a.node(i).pose.translation(), b.node(i).pose.translation());
+    EXPECT_EQ(original.node(i).pose.rotation().coeffs(), a.node(i).pose.rotation().coeffs());
+  }
+  for (std::size_t k = 0; k < a.numConstraints(); ++k) {
+    EXPECT_EQ(a.constraints()[k].measurement.rotation().coeffs(), b.constraints()[k].measurement.rotation().coeffs());
+    EXPECT_EQ(a.constraints()[k].measurement.translation(), b.constraints()[k].measurement.translation());
+  }
+  EXPECT_EQ(text, writeText(b, GraphFormat::kG2o));
+  EXPECT_EQ(b.fixedNodes(), std::vector<NodeId>{0});
+}
+
+TEST(GraphIo, RoundTripToro3dBothOrders) {
+  std::mt19937 rng(8);
+  const PoseGraph original = randomGraph(rng, false);
+  for (const auto order : {ToroInformationOrder::kTranslationFirst, ToroInformationOrder::kRotationFirst}) {
+    ReadOptions options;
+    options.toro_information_order = order;
+    const PoseGraph a = readText(writeText(original, GraphFormat::kToro, order), "a.graph", options);
+    const PoseGraph b = readText(writeText(a, GraphFormat::kToro, order), "b.graph", options);
+    expectSameStructure(original, a);  // information exact: powers of two and a permutation
+    expectSameStructure(a, b);
+    for (std::size_t i = 0; i < a.numNodes(); ++i) {
+      expectPosesNear(original.node(i).pose, a.node(i).pose, 1e-12);
+      EXPECT_LT((a.node(i).pose.rollPitchYaw() - b.node(i).pose.rollPitchYaw()).cwiseAbs().maxCoeff(), 1e-12);
+      EXPECT_EQ(a.node(i).pose.translation(), b.node(i).pose.translation());
+    }
+    for (std::size_t k = 0; k < a.numConstraints(); ++k) {
+      expectPosesNear(a.constraints()[k].measurement, b.constraints()[k].measurement, 1e-12);
+    }
+  }
+  // Reading with the other order than the writer's gives a different weighting: the option matters.
+  ReadOptions rotation_first;
+  rotation_first.toro_information_order = ToroInformationOrder::kRotationFirst;
+  const PoseGraph swapped = readText(writeText(original, GraphFormat::kToro), "c.graph", rotation_first);
+  EXPECT_NE(swapped.constraints()[0].information, original.constraints()[0].information);
+}
+
+TEST(GraphIo, RoundTrip2dG2oAndToro) {
+  std::mt19937 rng(9);
+  const PoseGraph original = randomGraph(rng, true);
+  for (const auto format : {GraphFormat::kG2o, GraphFormat::kToro}) {
+    const std::string text = writeText(original, format);
+    EXPECT_NE(text.find(format == GraphFormat::kG2o ? "EDGE_SE2 " : "EDGE2 "), std::string::npos);
+    const PoseGraph a = readText(text, format == GraphFormat::kG2o ? "a.g2o" : "a.graph");
+    const PoseGraph b = readText(writeText(a, format), format == GraphFormat::kG2o ? "b.g2o" : "b.graph");
+    expectSameStructure(original, a);
+    expectSameStructure(a, b);
+    for (std::size_t i = 0; i < a.numNodes(); ++i) {
+      EXPECT_EQ(a.node(i).pose.translation(), b.node(i).pose.translation());
+      EXPECT_NEAR(a.node(i).pose.rollPitchYaw().z(), b.node(i).pose.rollPitchYaw().z(), 1e-15);
+      expectPosesNear(original.node(i).pose, a.node(i).pose, 1e-15);
+    }
+  }
+}
+
+TEST(GraphIo, WriteFileByExtensionAndUnwritablePath) {
+  std::mt19937 rng(10);
+  const PoseGraph original = randomGraph(rng, false);
+  const auto dir = std::filesystem::temp_directory_path() / ("toro_graph_io_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  for (const char* name : {"out.g2o", "out.graph", "out.toro"}) {
+    const std::string path = (dir / name).string();
+    writeGraph(original, path);
+    std::ifstream in(path);
+    std::string tag;
+    in >> tag;
+    EXPECT_EQ(tag, std::string(name) == "out.g2o" ? "VERTEX_SE3:QUAT" : "VERTEX3") << name;
+    ReadOptions options;
+    options.format = std::string(name) == "out.g2o" ? GraphFormat::kG2o : GraphFormat::kToro;
+    expectSameStructure(original, readGraph(path, options));
+  }
+  std::filesystem::remove_all(dir);
+  try {
+    writeGraph(original, "/nonexistent/dir/out.g2o");
+    FAIL() << "no error";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("cannot write '/nonexistent/dir/out.g2o'"), std::string::npos);
+  }
+}
+
+// ---- the shared datasets ---------------------------------------------------------------------
+
+namespace {
+struct DatasetCounts {
+  std::size_t nodes;
+  std::size_t edges;
+  GraphDimension dimension;
+};
+
+// Counts from ../shared/datasets/README.md.
+const std::map<std::string, DatasetCounts>& datasetTable() {
+  static const std::map<std::string, DatasetCounts> table = {
+      {"sphere2500.g2o", {2500, 4949, GraphDimension::k3D}},
+      {"parking-garage.g2o", {1661, 6275, GraphDimension::k3D}},
+      {"sphere_bignoise_vertex3.g2o", {2200, 8647, GraphDimension::k3D}},
+      {"smallGrid3D.g2o", {125, 297, GraphDimension::k3D}},
+      {"small/tinyGrid3D.g2o", {9, 11, GraphDimension::k3D}},
+      {"small/pose3example.txt", {5, 6, GraphDimension::k3D}},
+      {"small/pose3example-grid.txt", {27, 44, GraphDimension::k3D}},
+      {"toro/sphere_smallnoise.graph", {2200, 8647, GraphDimension::k3D}},
+      {"toro/sphere_mednoise.graph", {2200, 8647, GraphDimension::k3D}},
+      {"toro/sphere_bignoise.graph", {2200, 8647, GraphDimension::k3D}},
+      {"toro/sphere_smallnoise_gtsam.graph", {2200, 8647, GraphDimension::k3D}},
+      {"toro/sphere2500_gtsam.txt", {2500, 4949, GraphDimension::k3D}},
+      {"toro/sphere2500_groundtruth_gtsam.txt", {2500, 4949, GraphDimension::k3D}},
+      {"2d/intel.g2o", {1728, 2512, GraphDimension::k2D}},
+      {"2d/intel_g2o-vertigo.g2o", {943, 1837, GraphDimension::k2D}},
+      {"2d/manhattan.g2o", {3500, 5453, GraphDimension::k2D}},
+      {"2d/manhattanOlson3500.g2o", {3500, 5598, GraphDimension::k2D}},
+      {"2d/city10000.g2o", {10000, 20687, GraphDimension::k2D}},
+      {"2d/CSAIL.g2o", {1045, 1172, GraphDimension::k2D}},
+      {"2d/MIT.g2o", {808, 827, GraphDimension::k2D}},
+      {"2d/ais2klinik.g2o", {15115, 16727, GraphDimension::k2D}},
+      {"2d/kitti_00.g2o", {4541, 4677, GraphDimension::k2D}},
+      {"2d/kitti_02.g2o", {4661, 4703, GraphDimension::k2D}},
+      {"2d/kitti_05.g2o", {2761, 2826, GraphDimension::k2D}},
+      {"toro/2d/w10000.graph", {10000, 64311, GraphDimension::k2D}},
+      {"toro/2d/w100.graph", {100, 300, GraphDimension::k2D}},
+  };
+  return table;
+}
+
+const std::filesystem::path kDatasets = TORO_DATASETS_DIR;
+}  // namespace
+
+TEST(GraphIoDatasets, EveryFileReadsWithTheDocumentedCounts) {
+  if (!std::filesystem::is_directory(kDatasets)) GTEST_SKIP() << "no datasets folder " << kDatasets;
+  std::size_t files = 0;
+  for (const auto& entry : std::filesystem::recursive_directory_iterator(kDatasets)) {
+    if (!entry.is_regular_file()) continue;
+    const std::string name = entry.path().filename().string();
+    if (name == "README.md" || name == "REFERENCE.md") continue;
+    const std::string relative = std::filesystem::relative(entry.path(), kDatasets).string();
+    SCOPED_TRACE(relative);
+    const auto it = datasetTable().find(relative);
+    ASSERT_NE(it, datasetTable().end()) << "file not in the README table";
+    ReadReport report;
+    PoseGraph g;
+    ASSERT_NO_THROW(g = readGraph(entry.path().string(), {}, &report));
+    EXPECT_EQ(g.numNodes(), it->second.nodes);
+    EXPECT_EQ(g.numConstraints(), it->second.edges);
+    EXPECT_EQ(g.dimension(), it->second.dimension);
+    ++files;
+  }
+  EXPECT_EQ(files, datasetTable().size());
+}
+
+TEST(GraphIoDatasets, ReportDetailsOfParticularFiles) {
+  if (!std::filesystem::is_directory(kDatasets)) GTEST_SKIP() << "no datasets folder " << kDatasets;
+  ReadReport r;
+  readGraph((kDatasets / "toro/2d/w100.graph").string(), {}, &r);
+  EXPECT_EQ(r.skipped_tags.at("EQUIV"), 40u);
+  readGraph((kDatasets / "toro/sphere_smallnoise.graph").string(), {}, &r);
+  EXPECT_EQ(r.comment_lines, 2u);  // #SEQUENTIAL / #LOOP
+  EXPECT_TRUE(r.skipped_tags.empty());
+  readGraph((kDatasets / "toro/sphere_smallnoise_gtsam.graph").string(), {}, &r);
+  EXPECT_EQ(r.edges_without_information, 8647u);
+  readGraph((kDatasets / "2d/manhattan.g2o").string(), {}, &r);
+  EXPECT_FALSE(r.has_vertices);
+  EXPECT_EQ(r.nodes_without_vertex.size(), 3500u);
+  readGraph((kDatasets / "2d/kitti_00.g2o").string(), {}, &r);  // has blank lines
+  EXPECT_EQ(r.edges, 4677u);
+}
+
+TEST(GraphIoDatasets, Sphere2500TranslationFirstToroMatchesG2oConversion) {
+  // The same graph as g2o and as GTSAM's EDGE3 file: reading EDGE3 with R = Rz Ry Rx and the
+  // translation-first order reproduces the g2o file (README: measurements to 5e-7, rotation
+  // information (400, 400, 99.2) vs 4 x (100, 100, 25)).
+  if (!std::filesystem::is_directory(kDatasets)) GTEST_SKIP() << "no datasets folder " << kDatasets;
+  const PoseGraph g2o = readGraph((kDatasets / "sphere2500.g2o").string());
+  const PoseGraph toro = readGraph((kDatasets / "toro/sphere2500_gtsam.txt").string());
+  ASSERT_EQ(g2o.numConstraints(), toro.numConstraints());
+  // The two files list the constraints in different orders; every (from, to) pair is unique.
+  std::map<std::pair<NodeId, NodeId>, std::size_t> toro_index;
+  for (std::size_t k = 0; k < toro.numConstraints(); ++k) {
+    toro_index[{toro.constraints()[k].from, toro.constraints()[k].to}] = k;
+  }
+  ASSERT_EQ(toro_index.size(), toro.numConstraints());
+  double worst_rotation = 0, worst_translation = 0;
+  for (std::size_t k = 0; k < g2o.numConstraints(); ++k) {
+    const Constraint& a = g2o.constraints()[k];
+    const auto it = toro_index.find({a.from, a.to});
+    ASSERT_NE(it, toro_index.end()) << a.from << " -> " << a.to;
+    const Constraint& b = toro.constraints()[it->second];
+    worst_rotation = std::max(worst_rotation, (a.measurement.inverse() * b.measurement).angle());
+    worst_translation = std::max(worst_translation, (a.measurement.translation() - b.measurement.translation()).norm());
+  }
+  EXPECT_LT(worst_rotation, 2e-6);
+  EXPECT_LT(worst_translation, 2e-5);
+  const Matrix6& ia = g2o.constraints()[0].information;
+  const Matrix6& ib = toro.constraints()[0].information;
+  EXPECT_EQ(ib.diagonal(), (Vector6() << 10, 10, 10, 400, 400, 100).finished());
+  EXPECT_NEAR(ia(3, 3), ib(3, 3), 0.01 * ib(3, 3));
+  EXPECT_NEAR(ia(5, 5), ib(5, 5), 0.01 * ib(5, 5));
+  EXPECT_NEAR(ia(0, 0), ib(0, 0), 1e-9);
+}
