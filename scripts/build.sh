@@ -2,7 +2,8 @@
 # Configures and builds toro_ros (libraries, tools, benchmarks and tests) into ${TORO_BUILD_DIR:-build}.
 #
 # Environment: TORO_BUILD_DIR (build directory, relative to the repo root or absolute; default build),
-# TORO_JOBS (parallel jobs, default 2), TORO_BUILD_TYPE (default Release).
+# TORO_JOBS (parallel jobs, default 2), TORO_BUILD_TYPE (default Release),
+# TORO_BUILD_TARGETS (space-separated, default "all tests"; e.g. "bench_toro" for the benchmark only).
 set -euo pipefail
 
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -10,6 +11,7 @@ BUILD_DIR="${TORO_BUILD_DIR:-build}"
 [[ "${BUILD_DIR}" = /* ]] || BUILD_DIR="${REPO_ROOT}/${BUILD_DIR}"
 JOBS="${TORO_JOBS:-2}"
 BUILD_TYPE="${TORO_BUILD_TYPE:-Release}"
+read -r -a TARGETS <<<"${TORO_BUILD_TARGETS:-all tests}"
 
 # A pyenv python3 first on PATH cannot import the ROS Python modules; use Debian's.
 export PYENV_VERSION=system
@@ -50,9 +52,9 @@ main() {
   echo "build.sh: configuring ${REPO_ROOT} into ${BUILD_DIR} (${BUILD_TYPE})"
   cmake -S "${REPO_ROOT}" -B "${BUILD_DIR}" -DCMAKE_BUILD_TYPE="${BUILD_TYPE}" \
     -DPYTHON_EXECUTABLE="${PYTHON}" -DPython3_EXECUTABLE="${PYTHON}" </dev/null
-  echo "build.sh: building all and tests with -j${JOBS}"
+  echo "build.sh: building ${TARGETS[*]} with -j${JOBS}"
   # Test executables are not part of `all` in catkin; `tests` builds them.
-  cmake --build "${BUILD_DIR}" -j"${JOBS}" --target all tests </dev/null
+  cmake --build "${BUILD_DIR}" -j"${JOBS}" --target "${TARGETS[@]}" </dev/null
 }
 
 main "$@"
