@@ -1,0 +1,267 @@
+// toro_optimize: optimise a pose-graph file (g2o or TORO, 2D or 3D) with TORO 3D and report the
+// error measures of ../shared/datasets/REFERENCE.md before, during and after.
+//
+// Structure: parseArguments() fills CliOptions; run() reads the graph, sets up the optimiser and
+// calls runPhase() once per optimisation phase (today the tree phase; a later phase, e.g. a
+// second-order finish, is one more Phase and one more call), then prints the summary and writes
+// the output.  Every failure is an exception caught in run(): one line on stderr, non-zero exit.
+#include <charconv>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <iostream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/core/tree_optimizer.h"
+
+namespace {
+
+constexpr const char* kProgram = "toro_optimize";
+constexpr int kExitBadInput = 1;
+constexpr int kExitBadArguments = 2;
+
+constexpr const char* kUsage =
+    "usage: toro_optimize [options] INPUT\n"
+    "Optimises a pose graph with TORO 3D (tree parameterisation + stochastic gradient descent).\n"
+    "INPUT: g2o (VERTEX_SE3:QUAT/EDGE_SE3:QUAT, VERTEX_SE2/EDGE_SE2) or TORO (VERTEX3/EDGE3,\n"
+    "VERTEX2/EDGE2); format by extension (.g2o, .graph), otherwise by the first data line.\n"
+    "options:\n"
+    "  -i N                      iterations (default 100; 0 only measures / converts)\n"
+    "  -o OUTPUT                 write the result; format by extension (.graph/.toro: TORO, else g2o)\n"
+    "  --initial-guess chain|file  chain the measurements along the tree (default) or keep the\n"
+    "                            file's poses (files without VERTEX lines always chain)\n"
+    "  --gamma G                 learning rate of iteration k is 1/(G k) (default 1)\n"
+    "  --toro-info-order translation-first|rotation-first\n"
+    "                            order of the EDGE3 information matrix, for reading and writing\n"
+    "                            (default translation-first, as g2o and HOG-Man read it)\n"
+    "  -q                        quiet: only the final summary (no per-iteration metrics)\n"
+    "  --help                    this text\n"
+    "Per-iteration lines: phase, iteration, optimisation seconds so far (metric time excluded),\n"
+    "g2o chi2, SE-Sync objective, largest rotational (rad) and translational residual.\n";
+
+class UsageError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct CliOptions {
+  std::string input;
+  std::string output;
+  std::size_t iterations = 100;
+  bool chain_guess = true;
+  double gamma = toro::TreeOptimizerOptions{}.gamma;
+  toro::ToroInformationOrder toro_order = toro::ToroInformationOrder::kTranslationFirst;
+  bool quiet = false;
+  bool help = false;
+};
+
+std::size_t parseCount(const std::string& flag, const std::string& text) {
+  std::size_t value = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || end != text.data() + text.size()) {
+    throw UsageError(flag + " needs a non-negative integer, got '" + text + "'");
+  }
+  return value;
+}
+
+double parsePositive(const std::string& flag, const std::string& text) {
+  double value = 0.0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || end != text.data() + text.size() || !std::isfinite(value) || value <= 0.0) {
+    throw UsageError(flag + " needs a positive number, got '" + text + "'");
+  }
+  return value;
+}
+
+CliOptions parseArguments(const std::vector<std::string>& args) {
+  CliOptions o;
+  for (std::size_t k = 0; k < args.size(); ++k) {
+    const std::string& a = args[k];
+    const auto value = [&]() -> const std::string& {
+      if (k + 1 >= args.size()) throw UsageError(a + " needs a value");
+      return args[++k];
+    };
+    if (a == "--help" || a == "-h") {
+      o.help = true;
+    } else if (a == "-q") {
+      o.quiet = true;
+    } else if (a == "-i") {
+      o.iterations = parseCount(a, value());
+    } else if (a == "-o") {
+      o.output = value();
+    } else if (a == "--gamma") {
+      o.gamma = parsePositive(a, value());
+    } else if (a == "--initial-guess") {
+      const std::string& v = value();
+      if (v != "chain" && v != "file") throw UsageError("--initial-guess must be chain or file, got '" + v + "'");
+      o.chain_guess = v == "chain";
+    } else if (a == "--toro-info-order") {
+      const std::string& v = value();
+      if (v != "translation-first" && v != "rotation-first") {
+        throw UsageError("--toro-info-order must be translation-first or rotation-first, got '" + v + "'");
+      }
+      o.toro_order = v == "translation-first" ? toro::ToroInformationOrder::kTranslationFirst
+                                              : toro::ToroInformationOrder::kRotationFirst;
+    } else if (a.size() > 1 && a[0] == '-') {
+      throw UsageError("unknown option '" + a + "'");
+    } else if (o.input.empty()) {
+      o.input = a;
+    } else {
+      throw UsageError("more than one input file ('" + o.input + "' and '" + a + "')");
+    }
+  }
+  if (!o.help && o.input.empty()) throw UsageError("no input file");
+  return o;
+}
+
+// ---- measuring -------------------------------------------------------------------------------
+
+using Clock = std::chrono::steady_clock;
+
+double secondsSince(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+struct Measures {
+  double chi2 = 0.0;
+  double se_sync = 0.0;
+  toro::ToroError toro;
+};
+
+Measures measure(const toro::PoseGraph& graph) {
+  return Measures{toro::g2oChi2(graph), toro::seSyncObjective(graph), toro::toroError(graph)};
+}
+
+// Time is split so that the optimisation time reported is the optimiser's alone.
+struct RunLog {
+  double setup_seconds = 0.0;
+  double optimise_seconds = 0.0;
+  double measure_seconds = 0.0;
+  std::size_t iterations = 0;
+};
+
+void printHeader() {
+  std::printf("%-6s %6s %10s %14s %14s %13s %13s\n", "phase", "iter", "time[s]", "g2o chi2", "SE-Sync",
+              "max rot[rad]", "max trans");
+}
+
+void printLine(const char* phase, std::size_t iteration, double seconds, const Measures& m) {
+  std::printf("%-6s %6zu %10.6f %14.8g %14.8g %13.6g %13.6g\n", phase, iteration, seconds, m.chi2, m.se_sync,
+              m.toro.max_rotation, m.toro.max_translation);
+  std::fflush(stdout);
+}
+
+// One optimisation phase: `step` runs one iteration; `current` gives the estimate to measure.
+struct Phase {
+  const char* name;
+  std::size_t iterations;
+  std::function<void()> step;
+  std::function<const toro::PoseGraph&()> current;
+};
+
+void runPhase(const Phase& phase, bool report_each, RunLog& log) {
+  for (std::size_t k = 1; k <= phase.iterations; ++k) {
+    const Clock::time_point start = Clock::now();
+    phase.step();
+    log.optimise_seconds += secondsSince(start);
+    ++log.iterations;
+    if (!report_each) continue;
+    const Clock::time_point measure_start = Clock::now();
+    const Measures m = measure(phase.current());
+    log.measure_seconds += secondsSince(measure_start);
+    printLine(phase.name, log.iterations, log.optimise_seconds, m);
+  }
+}
+
+// ---- the run ---------------------------------------------------------------------------------
+
+void printMeasures(const char* label, const Measures& m) {
+  std::printf("  %-7s g2o chi2 %.10g   SE-Sync %.10g   TORO error %.6g   max rotation %.6g rad   "
+              "max translation %.6g\n",
+              label, m.chi2, m.se_sync, m.toro.sum, m.toro.max_rotation, m.toro.max_translation);
+}
+
+void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measures& before,
+                  const Measures& after, const RunLog& log) {
+  std::printf("summary: %s, %zu nodes, %zu constraints, %zu iterations, initial guess %s\n", o.input.c_str(),
+              graph.numNodes(), graph.numConstraints(), log.iterations, o.chain_guess ? "chain" : "file");
+  printMeasures("before", before);
+  printMeasures("after", after);
+  const double per_iteration = log.iterations ? log.optimise_seconds / double(log.iterations) : 0.0;
+  std::printf("  time    setup %.4f s, optimisation %.4f s (%.3f ms/iteration), metrics %.4f s (not included)\n",
+              log.setup_seconds, log.optimise_seconds, 1e3 * per_iteration, log.measure_seconds);
+}
+
+// Chaining is forced when the file gives no pose for some node.
+bool decideChain(const CliOptions& o, const toro::ReadReport& report) {
+  if (o.chain_guess) return true;
+  if (!report.has_vertices || !report.nodes_without_vertex.empty()) {
+    if (!o.quiet) std::printf("note: some nodes have no VERTEX line; the initial guess is chained instead\n");
+    return true;
+  }
+  return false;
+}
+
+int optimise(CliOptions o) {
+  toro::ReadOptions read_options;
+  read_options.toro_information_order = o.toro_order;
+  toro::ReadReport report;
+  const toro::PoseGraph graph = toro::readGraph(o.input, read_options, &report);
+  if (!o.quiet) std::printf("%s\n", toro::describeReport(report).c_str());
+  if (graph.numConstraints() == 0) throw std::runtime_error(o.input + ": no constraints, nothing to optimise");
+  o.chain_guess = decideChain(o, report);
+
+  toro::TreeOptimizerOptions tree_options;
+  tree_options.gamma = o.gamma;
+  const std::string invalid = tree_options.validate();
+  if (!invalid.empty()) throw UsageError(invalid);
+  toro::TreeOptimizer optimizer(tree_options);
+  RunLog log;
+  const Clock::time_point setup_start = Clock::now();
+  optimizer.setGraph(graph, o.chain_guess ? toro::InitialGuess::kChainOnTree : toro::InitialGuess::kFromGraph);
+  log.setup_seconds = secondsSince(setup_start);
+
+  const Measures before = measure(optimizer.graph());
+  if (!o.quiet) {
+    printHeader();
+    printLine("start", 0, 0.0, before);
+  }
+  runPhase(Phase{"tree", o.iterations, [&] { optimizer.iterate(); }, [&]() -> const toro::PoseGraph& {
+                   return optimizer.graph();
+                 }},
+           !o.quiet, log);
+  printSummary(o, graph, before, measure(optimizer.graph()), log);
+  if (!o.output.empty()) {
+    toro::WriteOptions write_options;
+    write_options.toro_information_order = o.toro_order;
+    toro::writeGraph(optimizer.graph(), o.output, write_options);
+    if (!o.quiet) std::printf("wrote %s\n", o.output.c_str());
+  }
+  return 0;
+}
+
+int run(int argc, char** argv) {
+  try {
+    const CliOptions options = parseArguments(std::vector<std::string>(argv + 1, argv + argc));
+    if (options.help) {
+      std::cout << kUsage;
+      return 0;
+    }
+    return optimise(options);
+  } catch (const UsageError& e) {
+    std::cerr << kProgram << ": " << e.what() << " (see --help)\n";
+    return kExitBadArguments;
+  } catch (const std::exception& e) {
+    std::cerr << kProgram << ": " << e.what() << '\n';
+    return kExitBadInput;
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) { return run(argc, argv); }
