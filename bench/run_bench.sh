@@ -1,0 +1,68 @@
+#!/usr/bin/env bash
+# Builds and runs the optimiser benchmark, and writes bench/results.md (machine, date, commit and
+# the exact command noted above the tables).  Arguments are passed to bench_toro (see the comment at
+# the top of bench/bench_toro.cpp), e.g. `bash bench/run_bench.sh --only sphere2500 --no-synthetic`.
+#
+# Environment: TORO_BUILD_DIR (default build), TORO_BENCH_OUT (default bench/results.md).
+set -euo pipefail
+
+REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+BUILD_DIR="${TORO_BUILD_DIR:-build}"
+[[ "${BUILD_DIR}" = /* ]] || BUILD_DIR="${REPO_ROOT}/${BUILD_DIR}"
+OUT="${TORO_BENCH_OUT:-${REPO_ROOT}/bench/results.md}"
+BENCH="${BUILD_DIR}/devel/lib/toro_ros/bench_toro"
+
+# The arguments as one would type them (quoted only where the shell needs it).
+quotedArgs() {
+  local a
+  for a in "$@"; do
+    if [[ "${a}" =~ ^[A-Za-z0-9_./,=:+-]+$ ]]; then printf ' %s' "${a}"; else printf " '%s'" "${a//\'/\'\\\'\'}"; fi
+  done
+}
+
+TORO_BUILD_TARGETS=bench_toro bash "${REPO_ROOT}/scripts/build.sh" </dev/null >&2
+
+cpu_model="$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ *//')"
+memory="$(awk '/MemTotal/ {printf "%.1f GiB", $2 / 1048576}' /proc/meminfo)"
+commit="$(git -C "${REPO_ROOT}" rev-parse --short HEAD 2>/dev/null || echo unknown)"
+if [[ -n "$(git -C "${REPO_ROOT}" status --porcelain --untracked-files=no -- src include bench 2>/dev/null)" ]]; then
+  commit="${commit} + uncommitted changes in src/include/bench"
+fi
+load_before="$(cut -d' ' -f1-3 /proc/loadavg)"
+
+tables="$(mktemp)"
+trap 'rm -f "${tables}"' EXIT
+start=$(date +%s)
+"${BENCH}" "$@" >"${tables}" </dev/null
+elapsed=$(($(date +%s) - start))
+
+{
+  echo "# toro_ros benchmark results"
+  echo
+  echo "Written by \`bash bench/run_bench.sh$(quotedArgs "$@")\`, which builds the \`bench_toro\` target"
+  echo "(Release, see scripts/build.sh) and runs:"
+  echo
+  echo '```'
+  echo "${BENCH#"${REPO_ROOT}"/}$(quotedArgs "$@")"
+  echo '```'
+  echo
+  echo "- Date: $(date -u '+%Y-%m-%d %H:%M UTC'); benchmark wall time ${elapsed} s"
+  echo "- Machine: ${cpu_model}, $(nproc) cores (nproc), ${memory} RAM; $(uname -sr)"
+  echo "- Compiler: $(c++ --version | head -1)"
+  echo "- Code: commit ${commit}"
+  echo "- Load average (1/5/15 min) when the run started: ${load_before}. Other jobs share this machine,"
+  echo "  so wall times carry noise; [min, max] over the runs shows how much."
+  echo
+  echo "How it measures (bench/bench_toro.cpp): each dataset runs in its own child process; in each of"
+  echo "the timed runs the file is read, \`TreeOptimizer::setGraph\` builds the tree and the initial guess"
+  echo "chained on the tree (the default), and \`iterate()\` runs the iterations; the median over the runs is"
+  echo "reported. \"Whole run\" = read + setup + iterations, the quantity the targets refer to. chi2 (g2o)"
+  echo "and the SE-Sync objective are computed in one more, untimed run at the checkpoints (definitions in"
+  echo "../shared/datasets/REFERENCE.md; never compare one measure with the other). Peak RSS is the child's"
+  echo "ru_maxrss (it includes reading the file). TORO \`.graph\` files are read with the default EDGE3"
+  echo "information order (translation first, as g2o and HOG-Man). 2D files are lifted into 3D and"
+  echo "measured with the 2D definitions. The original-TORO figures come from issue 2."
+  echo
+  cat "${tables}"
+} >"${OUT}"
+echo "run_bench.sh: wrote ${OUT}" >&2
