@@ -1,0 +1,97 @@
+// The ROS adapter around Pipeline: parameters in, messages into a bounded queue, one worker thread
+// that owns the pipeline, results out as tf / path / markers / diagnostics, services as commands.
+//
+// Threads: the global callback queue (subscriptions, visualisation and diagnostics timers) is spun
+// by the caller (ros::spin in main); services run on their own callback queue and spinner so a
+// service waiting for the worker never delays the subscriptions; the tf timer has its own queue
+// and spinner so map->odom keeps its rate whatever else is busy.
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <future>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <variant>
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <nav_msgs/Odometry.h>
+#include <ros/callback_queue.h>
+#include <ros/ros.h>
+#include <std_srvs/Trigger.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include "toro_ros/GetStatus.h"
+#include "toro_ros/GraphFile.h"
+#include "toro_ros/LoopClosure.h"
+#include "toro_ros/Optimize.h"
+#include "toro_ros/node/input_queue.h"
+#include "toro_ros/node/node_options.h"
+#include "toro_ros/pipeline/pipeline.h"
+
+namespace toro_ros {
+
+class MapCorrectorNode {
+ public:
+  // Reads ~ parameters (throws std::invalid_argument naming the bad ones), advertises, subscribes
+  // and starts the worker.
+  MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_nh);
+  ~MapCorrectorNode();  // stops the worker (flag, notify, join)
+
+  MapCorrectorNode(const MapCorrectorNode&) = delete;
+  MapCorrectorNode& operator=(const MapCorrectorNode&) = delete;
+
+ private:
+  using Command = std::function<void(Pipeline&)>;
+  using Item = std::variant<nav_msgs::Odometry::ConstPtr, LoopClosure::ConstPtr, Command>;
+
+  void odometryCallback(const nav_msgs::Odometry::ConstPtr& msg);
+  void loopClosureCallback(const LoopClosure::ConstPtr& msg);
+  void workerLoop();
+  void process(Item& item);
+  void publishSnapshot();
+  void tfTimerCallback(const ros::TimerEvent&);
+  void visualizationTimerCallback(const ros::TimerEvent&);
+  void diagnose(diagnostic_updater::DiagnosticStatusWrapper& status);
+  std::shared_ptr<const Snapshot> snapshot() const;
+
+  // Runs `f` on the worker and waits (service_timeout_sec) for its result; nullopt on timeout.
+  template <class R>
+  std::optional<R> runOnWorker(std::function<R(Pipeline&)> f);
+
+  bool optimizeService(Optimize::Request& req, Optimize::Response& res);
+  bool pauseService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
+  bool resumeService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
+  bool resetService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
+  bool saveGraphService(GraphFile::Request& req, GraphFile::Response& res);
+  bool loadGraphService(GraphFile::Request& req, GraphFile::Response& res);
+  bool getStatusService(GetStatus::Request& req, GetStatus::Response& res);
+
+  ros::NodeHandle nh_, private_nh_;
+  NodeOptions options_;
+  InputQueue<Item> queue_;
+  std::unique_ptr<Pipeline> pipeline_;  // touched only by the worker thread (after construction)
+  std::atomic<bool> stop_{false};
+  std::atomic<bool> warned_frame_{false};
+
+  mutable std::mutex snapshot_mutex_;        // guards snapshot_ (the pointer, not the pointee)
+  std::shared_ptr<const Snapshot> snapshot_;
+
+  // Visualisation timer state (only its callback touches these).
+  std::uint64_t published_generation_ = 0;
+  std::uint64_t published_epoch_ = 0;
+
+  tf2_ros::TransformBroadcaster tf_broadcaster_;
+  ros::Publisher path_pub_, markers_pub_;
+  ros::Subscriber odom_sub_, loop_sub_;
+  std::vector<ros::ServiceServer> services_;
+  ros::CallbackQueue tf_queue_, service_queue_;
+  ros::Timer tf_timer_, visualization_timer_, diagnostics_timer_;
+  std::unique_ptr<ros::AsyncSpinner> tf_spinner_, service_spinner_;
+  diagnostic_updater::Updater diagnostics_;
+  std::thread worker_;
+};
+
+}  // namespace toro_ros

@@ -1,0 +1,44 @@
+// Options of the map corrector node and the one function that reads them from the private
+// parameter namespace (as an XmlRpc dictionary, so it is testable without a master).
+#pragma once
+
+#include <set>
+#include <string>
+#include <vector>
+
+#include <xmlrpcpp/XmlRpcValue.h>
+
+#include "toro_ros/pipeline/pipeline.h"
+#include "toro_ros/pipeline/visualization.h"
+
+namespace toro_ros {
+
+struct NodeOptions {
+  std::string map_frame = "map";
+  std::string odom_frame = "odom";
+  double tf_rate_hz = 50.0;                // map->odom republish rate
+  double transform_tolerance_sec = 0.1;    // tf stamped this far ahead of now
+  double visualization_rate_hz = 2.0;      // max rate of ~path and ~graph_markers updates
+  double diagnostics_rate_hz = 1.0;
+  int queue_size = 2000;                   // input queue bound (messages beyond are dropped, counted)
+  double service_timeout_sec = 60.0;       // a service waits this long for the worker
+  PipelineOptions pipeline;
+  MarkerOptions markers;
+  std::string validate() const;
+};
+
+struct OptionsReport {
+  std::vector<std::string> values;         // "key = value" for every known key (the log)
+  std::vector<std::string> unknown_keys;   // keys given but not known (typos)
+  std::vector<std::string> errors;         // wrong types or invalid values
+};
+
+// Reads every known key from `params` (a struct of the private namespace; missing keys keep their
+// defaults).  Never throws: problems go to report->errors, and the options are only usable if
+// that is empty.
+NodeOptions loadNodeOptions(const XmlRpc::XmlRpcValue& params, OptionsReport* report);
+
+// Every key loadNodeOptions knows.
+std::set<std::string> knownParameterKeys();
+
+}  // namespace toro_ros

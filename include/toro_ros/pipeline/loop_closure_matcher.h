@@ -1,0 +1,100 @@
+// Which keyframes a loop closure names: by id, or by stamps matched to the keyframe nearest in time
+// within a tolerance.  Stamps later than the newest odometry wait in a bounded pending list.
+#pragma once
+
+#include <cstddef>
+#include <deque>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <ros/time.h>
+
+#include "toro_ros/LoopClosure.h"
+#include "toro_ros/core/pose3.h"
+#include "toro_ros/core/pose_graph.h"
+
+namespace toro_ros {
+
+// One keyframe as the pipeline remembers it, in id (= stamp) order.
+struct KeyframeRecord {
+  toro::NodeId id = 0;
+  ros::Time stamp;
+  toro::Pose3 odom_T_base;  // the odometry pose it was made from
+};
+
+// Keyframes sorted by stamp and by id (both increase together).
+class KeyframeIndex {
+ public:
+  void append(const KeyframeRecord& record) { records_.push_back(record); }
+  void clear() { records_.clear(); }
+  const std::vector<KeyframeRecord>& records() const { return records_; }
+  std::size_t size() const { return records_.size(); }
+  bool empty() const { return records_.empty(); }
+  const KeyframeRecord& newest() const { return records_.back(); }
+
+  // Nearest keyframe in time with |stamp - keyframe| <= tolerance (ties: the older one).
+  std::optional<toro::NodeId> nearest(const ros::Time& stamp, double tolerance_sec) const;
+  // The record of an id, or nullptr.
+  const KeyframeRecord* find(toro::NodeId id) const;
+
+ private:
+  std::vector<KeyframeRecord> records_;
+};
+
+struct LoopClosureMatchOptions {
+  double stamp_tolerance_sec = 0.25;  // nearest keyframe must be within this of the stamp
+  std::size_t max_pending = 200;      // loop closures waiting for odometry to reach their stamps
+  std::string validate() const;
+};
+
+// Refusal categories (counted by the pipeline; the log line gives the details).
+namespace refusal {
+constexpr const char* kInvalid = "invalid message";
+constexpr const char* kUnknownId = "unknown node id";
+constexpr const char* kNoKeyframe = "no keyframe within tolerance";
+constexpr const char* kSameKeyframe = "both ends on one keyframe";
+constexpr const char* kPendingFull = "pending list full";
+constexpr const char* kReset = "dropped by reset";
+constexpr const char* kGraph = "refused by the graph";
+}  // namespace refusal
+
+struct MatchResult {
+  enum class State { kMatched, kPending, kRefused } state = State::kRefused;
+  toro::NodeId from = -1;
+  toro::NodeId to = -1;
+  std::string reason;  // refusal category
+  std::string detail;  // the human-readable why
+};
+
+class LoopClosureMatcher {
+ public:
+  explicit LoopClosureMatcher(const LoopClosureMatchOptions& options) : options_(options) {}
+
+  // Matches now, or queues the message if it names a stamp not yet decidable.  `newest_odometry`
+  // is the stamp of the newest odometry message seen (zero if none).
+  MatchResult submit(const LoopClosure& msg, const KeyframeIndex& index, const ros::Time& newest_odometry);
+
+  // Pending loop closures that are now decidable, each with its result (never kPending).
+  std::vector<std::pair<LoopClosure, MatchResult>> release(const KeyframeIndex& index,
+                                                           const ros::Time& newest_odometry);
+
+  // True if a pending loop closure names a stamp that an odometry message at `stamp` would be the
+  // first chance to cover (no keyframe near it yet): the pipeline then makes a keyframe there.
+  bool wantsKeyframeAt(const ros::Time& stamp, const KeyframeIndex& index) const;
+
+  std::size_t pending() const { return pending_.size(); }
+  // Empties the pending list, returning what was in it.
+  std::vector<LoopClosure> clear();
+
+ private:
+  // A stamp is decidable when a keyframe at or after it exists (no later keyframe can be nearer) or
+  // odometry has passed it by more than the tolerance (no keyframe can come within tolerance).
+  bool decidable(const ros::Time& stamp, const KeyframeIndex& index, const ros::Time& newest_odometry) const;
+  MatchResult matchNow(const LoopClosure& msg, const KeyframeIndex& index) const;
+
+  LoopClosureMatchOptions options_;
+  std::deque<LoopClosure> pending_;
+};
+
+}  // namespace toro_ros

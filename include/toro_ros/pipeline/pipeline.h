@@ -1,0 +1,138 @@
+// The live behaviour without the transport: odometry and loop-closure messages in stamp order in,
+// keyframes, constraints, optimisation passes and Snapshots out.  Used by the node in real time and
+// by an offline runner from a bag; it never reads wall time (except to report how long an
+// optimisation took) and starts no threads, so a given call sequence gives the same graph.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <nav_msgs/Odometry.h>
+
+#include "toro_ros/LoopClosure.h"
+#include "toro_ros/core/tree_optimizer.h"
+#include "toro_ros/pipeline/keyframer.h"
+#include "toro_ros/pipeline/loop_closure_matcher.h"
+#include "toro_ros/pipeline/snapshot.h"
+
+namespace toro_ros {
+
+struct OptimizationOptions {
+  double gamma = 1.0;                 // TORO learning rate 1/(gamma k)
+  // Full rounds: `full_iterations` passes over all constraints, due every `full_every_keyframes`
+  // new keyframes or `full_every_sec` of message time (0 disables either), and only when a loop
+  // closure arrived since the last round (a chain of odometry alone has nothing to correct).
+  int full_iterations = 5;
+  int full_every_keyframes = 50;
+  double full_every_sec = 10.0;
+  int service_default_iterations = 20;  // ~optimize with iterations = 0
+  std::string validate() const;
+};
+
+struct PipelineOptions {
+  KeyframerOptions keyframer;
+  LoopClosureMatchOptions matcher;
+  DefaultStddev loop_closure_default_stddev{0.1, 0.05};
+  OptimizationOptions optimization;
+  // Odometry more than this older than the newest resets the graph (a bag restarted); smaller
+  // steps back are refused as out of order.
+  double time_jump_reset_sec = 1.0;
+  std::string validate() const;
+};
+
+struct OptimizeResult {
+  bool success = false;
+  std::string message;
+  double chi2_before = 0.0;
+  double chi2_after = 0.0;
+  double time_sec = 0.0;
+  int iterations = 0;
+};
+
+// Status for ~get_status and diagnostics.
+struct PipelineStatus {
+  std::size_t keyframes = 0;
+  std::size_t constraints = 0;
+  std::size_t pending_loop_closures = 0;
+  double last_chi2 = 0.0;                 // NaN before any optimisation
+  double last_optimization_sec = 0.0;
+  bool paused = false;
+  PipelineCounters counters;
+};
+
+class Pipeline {
+ public:
+  using WarningSink = std::function<void(const std::string&)>;
+
+  // Throws std::invalid_argument if options.validate() complains.
+  explicit Pipeline(const PipelineOptions& options, WarningSink warn = nullptr);
+
+  // Grows the graph (no optimisation here).  Refusals are counted and reported to the sink.
+  void handleOdometry(const nav_msgs::Odometry& msg);
+  void handleLoopClosure(const LoopClosure& msg);
+
+  // Runs what is due: one affected pass if loop closures were applied since the last call, else one
+  // pass of a due full round (rounds are spread over calls so the caller can take new messages in
+  // between).  Nothing while paused.  Returns true if poses changed.
+  bool runScheduledOptimization();
+  // True if a full round has passes left (the caller should call runScheduledOptimization again).
+  bool hasScheduledWork() const;
+
+  // ~optimize: `iterations` (0: the configured default) passes; mode "full" or "finish".
+  OptimizeResult optimize(unsigned iterations, const std::string& mode);
+  void setPaused(bool paused) { paused_ = paused; }
+  bool paused() const { return paused_; }
+  // Forgets the graph, keyframes and pending loop closures (counters survive; resets counted).
+  void reset(const std::string& why);
+  // Save/load the graph (format by extension) and a "<path>.stamps" sidecar (see persistence.h).
+  // Empty string on success, else the error.  A failed load leaves the pipeline untouched.
+  std::string saveGraph(const std::string& path) const;
+  std::string loadGraph(const std::string& path);
+
+  // A new immutable snapshot of the current state (O(keyframes + constraints)).
+  std::shared_ptr<const Snapshot> makeSnapshot();
+  PipelineStatus status() const;
+  const toro::PoseGraph& graph() const { return optimizer_.graph(); }
+  const KeyframeIndex& keyframes() const { return keyframes_; }
+  const PipelineOptions& options() const { return options_; }
+  // Changes whenever what a snapshot shows changes (keyframes, constraints, poses, counters of
+  // refusals, resets); not for odometry that makes no keyframe.  Publishers compare it.
+  std::uint64_t revision() const { return revision_; }
+
+ private:
+  void addKeyframe(const OdometrySample& sample);
+  void applyLoopClosure(const LoopClosure& msg, const MatchResult& match);
+  void releasePending();
+  void refuse(const std::string& category, const std::string& detail);
+  void refuseLoopClosure(const MatchResult& match, const LoopClosure& msg);
+  void clearGraph();
+  void runFullPass();
+
+  PipelineOptions options_;
+  WarningSink warn_;
+  toro::TreeOptimizer optimizer_;
+  Keyframer keyframer_;
+  LoopClosureMatcher matcher_;
+  KeyframeIndex keyframes_;
+  std::vector<bool> is_loop_closure_;  // per constraint index
+  ros::Time newest_odometry_;
+  toro::NodeId next_id_ = 0;
+  bool paused_ = false;
+  // Schedule state (message time, never wall time).
+  bool affected_pending_ = false;
+  std::size_t loop_closures_since_full_ = 0;
+  std::size_t keyframes_since_full_ = 0;
+  ros::Time last_full_stamp_;
+  int full_passes_left_ = 0;
+  double last_chi2_;
+  double last_optimization_sec_ = 0.0;
+  std::uint64_t generation_ = 0;
+  std::uint64_t revision_ = 0;
+  std::uint64_t epoch_ = 0;
+  PipelineCounters counters_;
+};
+
+}  // namespace toro_ros

@@ -1,0 +1,192 @@
+#include "toro_ros/node/map_corrector_node.h"
+
+#include <sstream>
+#include <stdexcept>
+
+#include <geometry_msgs/TransformStamped.h>
+#include <nav_msgs/Path.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include "toro_ros/node/names.h"
+#include "toro_ros/pipeline/msg_conversion.h"
+#include "toro_ros/pipeline/visualization.h"
+
+namespace toro_ros {
+
+namespace {
+
+// The one place parameters are read: the whole private namespace at once, every value logged,
+// unknown keys warned about (typos would otherwise silently keep a default).
+NodeOptions loadOptions(const ros::NodeHandle& private_nh) {
+  XmlRpc::XmlRpcValue params;
+  if (!private_nh.getParam(private_nh.getNamespace(), params)) params = XmlRpc::XmlRpcValue();
+  OptionsReport report;
+  const NodeOptions options = loadNodeOptions(params, &report);
+  for (const std::string& line : report.values) ROS_INFO_STREAM("  " << private_nh.getNamespace() << "/" << line);
+  for (const std::string& key : report.unknown_keys)
+    ROS_WARN_STREAM("unknown parameter " << private_nh.getNamespace() << "/" << key
+                                         << " (ignored; see config/map_corrector.yaml for the known keys)");
+  if (!report.errors.empty()) {
+    std::ostringstream all;
+    for (const std::string& e : report.errors) all << "\n  " << e;
+    throw std::invalid_argument("invalid parameters in " + private_nh.getNamespace() + ":" + all.str());
+  }
+  return options;
+}
+
+}  // namespace
+
+MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_nh)
+    : nh_(nh),
+      private_nh_(private_nh),
+      options_(loadOptions(private_nh)),
+      queue_(static_cast<std::size_t>(options_.queue_size)),
+      pipeline_(std::make_unique<Pipeline>(options_.pipeline,
+                                           [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); })),
+      diagnostics_(nh, private_nh) {
+  snapshot_ = pipeline_->makeSnapshot();
+  path_pub_ = private_nh_.advertise<nav_msgs::Path>(names::kPathTopic, 1, true);
+  markers_pub_ = private_nh_.advertise<visualization_msgs::MarkerArray>(names::kMarkersTopic, 1, true);
+
+  worker_ = std::thread(&MapCorrectorNode::workerLoop, this);
+
+  odom_sub_ = nh_.subscribe(names::kOdometryTopic, 100, &MapCorrectorNode::odometryCallback, this,
+                            ros::TransportHints().tcpNoDelay());
+  loop_sub_ = nh_.subscribe(names::kLoopClosureTopic, 100, &MapCorrectorNode::loopClosureCallback, this,
+                            ros::TransportHints().tcpNoDelay());
+
+  ros::NodeHandle service_nh(private_nh_);
+  service_nh.setCallbackQueue(&service_queue_);
+  services_.push_back(service_nh.advertiseService(names::kOptimizeService, &MapCorrectorNode::optimizeService, this));
+  services_.push_back(service_nh.advertiseService(names::kPauseService, &MapCorrectorNode::pauseService, this));
+  services_.push_back(service_nh.advertiseService(names::kResumeService, &MapCorrectorNode::resumeService, this));
+  services_.push_back(service_nh.advertiseService(names::kResetService, &MapCorrectorNode::resetService, this));
+  services_.push_back(service_nh.advertiseService(names::kSaveGraphService, &MapCorrectorNode::saveGraphService, this));
+  services_.push_back(service_nh.advertiseService(names::kLoadGraphService, &MapCorrectorNode::loadGraphService, this));
+  services_.push_back(service_nh.advertiseService(names::kGetStatusService, &MapCorrectorNode::getStatusService, this));
+  service_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &service_queue_);
+  service_spinner_->start();
+
+  ros::NodeHandle tf_nh(nh_);
+  tf_nh.setCallbackQueue(&tf_queue_);
+  tf_timer_ = tf_nh.createTimer(ros::Duration(1.0 / options_.tf_rate_hz), &MapCorrectorNode::tfTimerCallback, this);
+  tf_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &tf_queue_);
+  tf_spinner_->start();
+
+  visualization_timer_ = nh_.createTimer(ros::Duration(1.0 / options_.visualization_rate_hz),
+                                         &MapCorrectorNode::visualizationTimerCallback, this);
+  diagnostics_.setHardwareID("none");
+  diagnostics_.add("map corrector", this, &MapCorrectorNode::diagnose);
+  diagnostics_timer_ = nh_.createTimer(ros::Duration(1.0 / options_.diagnostics_rate_hz),
+                                       [this](const ros::TimerEvent&) { diagnostics_.update(); });
+  ROS_INFO_STREAM("map corrector: listening on " << odom_sub_.getTopic() << " and " << loop_sub_.getTopic()
+                                                 << ", publishing " << options_.map_frame << " -> "
+                                                 << options_.odom_frame);
+}
+
+MapCorrectorNode::~MapCorrectorNode() {
+  // Stop the producers first, then the worker: flag, wake it, join.
+  tf_timer_.stop();
+  visualization_timer_.stop();
+  diagnostics_timer_.stop();
+  odom_sub_.shutdown();
+  loop_sub_.shutdown();
+  if (service_spinner_) service_spinner_->stop();
+  if (tf_spinner_) tf_spinner_->stop();
+  stop_ = true;
+  queue_.stop();
+  if (worker_.joinable()) worker_.join();
+}
+
+void MapCorrectorNode::odometryCallback(const nav_msgs::Odometry::ConstPtr& msg) {
+  // Content is validated once, in the pipeline (so the offline runner validates identically);
+  // here only what the transport knows: which frame the message claims.
+  if (!msg->header.frame_id.empty() && msg->header.frame_id != options_.odom_frame && !warned_frame_.exchange(true))
+    ROS_WARN_STREAM("map corrector: odometry in frame '" << msg->header.frame_id << "' but odom_frame is '"
+                                                         << options_.odom_frame << "'; map->"
+                                                         << options_.odom_frame << " is published regardless");
+  if (!queue_.push(msg)) ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, odometry dropped");
+}
+
+void MapCorrectorNode::loopClosureCallback(const LoopClosure::ConstPtr& msg) {
+  if (!queue_.push(msg)) ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, loop closure dropped");
+}
+
+void MapCorrectorNode::process(Item& item) {
+  if (auto* odom = std::get_if<nav_msgs::Odometry::ConstPtr>(&item))
+    pipeline_->handleOdometry(**odom);
+  else if (auto* loop = std::get_if<LoopClosure::ConstPtr>(&item))
+    pipeline_->handleLoopClosure(**loop);
+  else
+    std::get<Command>(item)(*pipeline_);
+}
+
+void MapCorrectorNode::workerLoop() {
+  std::deque<Item> batch;
+  while (!stop_) {
+    // Sleep only when no optimisation round is in progress; otherwise take what came in and go on.
+    if (!queue_.popAll(batch, !pipeline_->hasScheduledWork())) break;
+    const std::uint64_t before = pipeline_->revision();
+    for (Item& item : batch) process(item);
+    batch.clear();
+    pipeline_->runScheduledOptimization();
+    if (pipeline_->revision() != before) publishSnapshot();
+  }
+}
+
+void MapCorrectorNode::publishSnapshot() {
+  std::shared_ptr<const Snapshot> s = pipeline_->makeSnapshot();
+  std::lock_guard<std::mutex> lock(snapshot_mutex_);
+  snapshot_.swap(s);
+}
+
+std::shared_ptr<const Snapshot> MapCorrectorNode::snapshot() const {
+  std::lock_guard<std::mutex> lock(snapshot_mutex_);
+  return snapshot_;
+}
+
+void MapCorrectorNode::tfTimerCallback(const ros::TimerEvent&) {
+  const std::shared_ptr<const Snapshot> s = snapshot();
+  const ros::Time now = ros::Time::now();
+  if (!s->has_map_T_odom || now.isZero()) return;  // nothing yet, or sim time before the first /clock
+  geometry_msgs::TransformStamped t;
+  // Stamped ahead so that tf lookups at "now" made by other nodes find it before the next tick.
+  t.header.stamp = now + ros::Duration(options_.transform_tolerance_sec);
+  t.header.frame_id = options_.map_frame;
+  t.child_frame_id = options_.odom_frame;
+  t.transform = transformToMsg(s->map_T_odom);
+  tf_broadcaster_.sendTransform(t);
+}
+
+void MapCorrectorNode::visualizationTimerCallback(const ros::TimerEvent&) {
+  const std::shared_ptr<const Snapshot> s = snapshot();
+  if (s->generation == published_generation_) return;
+  const bool new_epoch = s->epoch != published_epoch_;
+  const ros::Time now = ros::Time::now();
+  path_pub_.publish(pathFromSnapshot(*s, options_.map_frame, now));
+  markers_pub_.publish(markersFromSnapshot(*s, options_.map_frame, now, options_.markers, new_epoch));
+  published_generation_ = s->generation;
+  published_epoch_ = s->epoch;
+}
+
+void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& status) {
+  const std::shared_ptr<const Snapshot> s = snapshot();
+  const std::size_t queued = queue_.size();
+  if (queued * 2 > static_cast<std::size_t>(options_.queue_size))
+    status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "input queue more than half full");
+  else if (s->keyframes.empty())
+    status.summary(diagnostic_msgs::DiagnosticStatus::OK, "waiting for odometry");
+  else
+    status.summary(diagnostic_msgs::DiagnosticStatus::OK, "running");
+  status.add("queue length", queued);
+  status.add("queue dropped", queue_.dropped());
+  status.add("keyframes", s->keyframes.size());
+  status.add("constraints", s->edges.size());
+  status.add("loop closures applied", s->counters.loop_closures_applied);
+  status.add("loop closures refused", s->counters.loop_closures_refused);
+  status.add("loop closures pending", s->pending_loop_closures);
+  status.add("last chi2", s->chi2);
+  status.add("last optimization sec", s->last_optimization_sec);
+}
+
+}  // namespace toro_ros

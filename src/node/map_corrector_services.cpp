@@ -1,0 +1,104 @@
+// Services of MapCorrectorNode: each becomes a command the worker runs between passes, answered
+// through a future with a timeout, so no service ever touches the pipeline from another thread.
+#include <chrono>
+#include <cmath>
+
+#include "toro_ros/node/map_corrector_node.h"
+
+namespace toro_ros {
+
+template <class R>
+std::optional<R> MapCorrectorNode::runOnWorker(std::function<R(Pipeline&)> f) {
+  auto promise = std::make_shared<std::promise<R>>();
+  std::future<R> result = promise->get_future();
+  queue_.pushAlways(Command([promise, f = std::move(f), this](Pipeline& pipeline) {
+    promise->set_value(f(pipeline));
+    // Commands change the map (reset, load, optimise): publish at once, not at the next message.
+    publishSnapshot();
+  }));
+  if (result.wait_for(std::chrono::duration<double>(options_.service_timeout_sec)) != std::future_status::ready)
+    return std::nullopt;
+  return result.get();
+}
+
+namespace {
+constexpr const char* kTimedOut = "timed out waiting for the worker (service_timeout_sec)";
+}  // namespace
+
+bool MapCorrectorNode::optimizeService(Optimize::Request& req, Optimize::Response& res) {
+  const unsigned iterations = req.iterations;
+  const std::string mode = req.mode;
+  const auto r = runOnWorker<OptimizeResult>([&](Pipeline& p) { return p.optimize(iterations, mode); });
+  if (!r) {
+    res.success = false;
+    res.message = kTimedOut;
+    return true;
+  }
+  res.success = r->success;
+  res.message = r->message;
+  res.chi2_before = r->chi2_before;
+  res.chi2_after = r->chi2_after;
+  res.time_sec = r->time_sec;
+  return true;
+}
+
+bool MapCorrectorNode::pauseService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  const auto r = runOnWorker<bool>([](Pipeline& p) { return p.setPaused(true), true; });
+  res.success = r.has_value();
+  res.message = r ? "optimisation paused (the graph keeps growing)" : kTimedOut;
+  return true;
+}
+
+bool MapCorrectorNode::resumeService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  const auto r = runOnWorker<bool>([](Pipeline& p) { return p.setPaused(false), true; });
+  res.success = r.has_value();
+  res.message = r ? "optimisation resumed" : kTimedOut;
+  return true;
+}
+
+bool MapCorrectorNode::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  const auto r = runOnWorker<bool>([](Pipeline& p) { return p.reset("~reset service called"), true; });
+  res.success = r.has_value();
+  res.message = r ? "graph reset" : kTimedOut;
+  return true;
+}
+
+bool MapCorrectorNode::saveGraphService(GraphFile::Request& req, GraphFile::Response& res) {
+  const std::string path = req.path;
+  const auto r = runOnWorker<std::string>([&](Pipeline& p) { return p.saveGraph(path); });
+  res.success = r && r->empty();
+  res.message = !r ? kTimedOut : (r->empty() ? "saved " + path : *r);
+  return true;
+}
+
+bool MapCorrectorNode::loadGraphService(GraphFile::Request& req, GraphFile::Response& res) {
+  const std::string path = req.path;
+  const auto r = runOnWorker<std::string>([&](Pipeline& p) { return p.loadGraph(path); });
+  res.success = r && r->empty();
+  res.message = !r ? kTimedOut : (r->empty() ? "loaded " + path : *r);
+  return true;
+}
+
+bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response& res) {
+  const auto r = runOnWorker<PipelineStatus>([](Pipeline& p) { return p.status(); });
+  if (!r) return false;
+  res.keyframes = r->keyframes;
+  res.constraints = r->constraints;
+  res.loop_closures_applied = r->counters.loop_closures_applied;
+  res.loop_closures_pending = r->pending_loop_closures;
+  res.loop_closures_refused = r->counters.loop_closures_refused;
+  for (const auto& [reason, count] : r->counters.refused_by_reason) {
+    res.refused_reasons.push_back(reason);
+    res.refused_counts.push_back(count);
+  }
+  res.odometry_messages = r->counters.odometry_messages;
+  res.time_jump_resets = r->counters.time_jump_resets;
+  res.queue_length = queue_.size();
+  res.queue_dropped = queue_.dropped();
+  res.last_chi2 = r->last_chi2;
+  res.last_optimization_sec = r->last_optimization_sec;
+  res.paused = r->paused;
+  return true;
+}
+
+}  // namespace toro_ros

@@ -1,0 +1,134 @@
+#include "toro_ros/pipeline/loop_closure_matcher.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "toro_ros/pipeline/msg_conversion.h"
+
+namespace toro_ros {
+
+namespace {
+
+bool byId(const LoopClosure& msg) { return msg.id_from >= 0 && msg.id_to >= 0; }
+
+ros::Time latestStamp(const LoopClosure& msg) { return std::max(msg.stamp_from, msg.stamp_to); }
+
+MatchResult refused(const char* reason, const std::string& detail) {
+  MatchResult r;
+  r.state = MatchResult::State::kRefused;
+  r.reason = reason;
+  r.detail = detail;
+  return r;
+}
+
+}  // namespace
+
+std::optional<toro::NodeId> KeyframeIndex::nearest(const ros::Time& stamp, double tolerance_sec) const {
+  if (records_.empty()) return std::nullopt;
+  auto it = std::lower_bound(records_.begin(), records_.end(), stamp,
+                             [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
+  const KeyframeRecord* best = nullptr;
+  double best_dt = 0.0;
+  auto consider = [&](const KeyframeRecord& r) {
+    const double dt = std::abs((r.stamp - stamp).toSec());
+    if (best == nullptr || dt < best_dt) {
+      best = &r;
+      best_dt = dt;
+    }
+  };
+  if (it != records_.begin()) consider(*(it - 1));
+  if (it != records_.end()) consider(*it);
+  if (best == nullptr || best_dt > tolerance_sec) return std::nullopt;
+  return best->id;
+}
+
+const KeyframeRecord* KeyframeIndex::find(toro::NodeId id) const {
+  auto it = std::lower_bound(records_.begin(), records_.end(), id,
+                             [](const KeyframeRecord& r, toro::NodeId i) { return r.id < i; });
+  return (it != records_.end() && it->id == id) ? &*it : nullptr;
+}
+
+std::string LoopClosureMatchOptions::validate() const {
+  if (!(std::isfinite(stamp_tolerance_sec) && stamp_tolerance_sec >= 0))
+    return "loop closure stamp_tolerance_sec must be >= 0";
+  if (max_pending == 0) return "loop closure max_pending must be > 0";
+  return "";
+}
+
+bool LoopClosureMatcher::decidable(const ros::Time& stamp, const KeyframeIndex& index,
+                                   const ros::Time& newest_odometry) const {
+  if (!index.empty() && index.newest().stamp >= stamp) return true;
+  return !newest_odometry.isZero() && (newest_odometry - stamp).toSec() > options_.stamp_tolerance_sec;
+}
+
+MatchResult LoopClosureMatcher::matchNow(const LoopClosure& msg, const KeyframeIndex& index) const {
+  MatchResult r;
+  if (byId(msg)) {
+    for (toro::NodeId id : {msg.id_from, msg.id_to})
+      if (index.find(id) == nullptr) return refused(refusal::kUnknownId, "no keyframe has id " + std::to_string(id));
+    r.from = msg.id_from;
+    r.to = msg.id_to;
+  } else {
+    const auto from = index.nearest(msg.stamp_from, options_.stamp_tolerance_sec);
+    const auto to = index.nearest(msg.stamp_to, options_.stamp_tolerance_sec);
+    for (const auto& [id, stamp] : {std::pair{from, msg.stamp_from}, std::pair{to, msg.stamp_to}})
+      if (!id)
+        return refused(refusal::kNoKeyframe, "no keyframe within " + std::to_string(options_.stamp_tolerance_sec) +
+                                                 " s of stamp " + stampString(stamp));
+    if (*from == *to)
+      return refused(refusal::kSameKeyframe, "stamps " + stampString(msg.stamp_from) + " and " +
+                                                 stampString(msg.stamp_to) + " both match keyframe " +
+                                                 std::to_string(*from));
+    r.from = *from;
+    r.to = *to;
+  }
+  r.state = MatchResult::State::kMatched;
+  return r;
+}
+
+MatchResult LoopClosureMatcher::submit(const LoopClosure& msg, const KeyframeIndex& index,
+                                       const ros::Time& newest_odometry) {
+  const std::string invalid = validateLoopClosure(msg);
+  if (!invalid.empty()) return refused(refusal::kInvalid, invalid);
+  if (byId(msg) || decidable(latestStamp(msg), index, newest_odometry)) return matchNow(msg, index);
+  if (pending_.size() >= options_.max_pending)
+    return refused(refusal::kPendingFull, "already " + std::to_string(pending_.size()) +
+                                              " loop closures wait for odometry to reach their stamps");
+  pending_.push_back(msg);
+  MatchResult r;
+  r.state = MatchResult::State::kPending;
+  return r;
+}
+
+std::vector<std::pair<LoopClosure, MatchResult>> LoopClosureMatcher::release(const KeyframeIndex& index,
+                                                                             const ros::Time& newest_odometry) {
+  std::vector<std::pair<LoopClosure, MatchResult>> out;
+  // Keep arrival order among the released ones so results do not depend on the list's layout.
+  std::deque<LoopClosure> still;
+  for (const LoopClosure& msg : pending_) {
+    if (decidable(latestStamp(msg), index, newest_odometry))
+      out.emplace_back(msg, matchNow(msg, index));
+    else
+      still.push_back(msg);
+  }
+  pending_.swap(still);
+  return out;
+}
+
+bool LoopClosureMatcher::wantsKeyframeAt(const ros::Time& stamp, const KeyframeIndex& index) const {
+  for (const LoopClosure& msg : pending_) {
+    for (const ros::Time& s : {msg.stamp_from, msg.stamp_to}) {
+      if (s > stamp || (stamp - s).toSec() > options_.stamp_tolerance_sec) continue;
+      if (!index.nearest(s, options_.stamp_tolerance_sec)) return true;
+    }
+  }
+  return false;
+}
+
+std::vector<LoopClosure> LoopClosureMatcher::clear() {
+  std::vector<LoopClosure> out(pending_.begin(), pending_.end());
+  pending_.clear();
+  return out;
+}
+
+}  // namespace toro_ros

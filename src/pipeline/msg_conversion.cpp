@@ -1,0 +1,136 @@
+#include "toro_ros/pipeline/msg_conversion.h"
+
+#include <cmath>
+#include <cstdio>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
+namespace toro_ros {
+
+namespace {
+
+bool quaternionUsable(const geometry_msgs::Quaternion& q) {
+  const double n2 = q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w;
+  return std::isfinite(n2) && n2 > 1e-12;
+}
+
+bool pointFinite(const geometry_msgs::Point& p) {
+  return std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
+}
+
+std::string validatePose(const geometry_msgs::Pose& pose) {
+  if (!pointFinite(pose.position)) return "position is not finite";
+  if (!quaternionUsable(pose.orientation)) return "orientation is not a usable quaternion (zero or not finite)";
+  return "";
+}
+
+}  // namespace
+
+toro::Pose3 poseFromMsg(const geometry_msgs::Pose& msg) {
+  const auto& q = msg.orientation;
+  return toro::Pose3(toro::Quaternion(q.w, q.x, q.y, q.z),
+                     toro::Vector3(msg.position.x, msg.position.y, msg.position.z));
+}
+
+geometry_msgs::Pose poseToMsg(const toro::Pose3& pose) {
+  geometry_msgs::Pose msg;
+  msg.position.x = pose.translation().x();
+  msg.position.y = pose.translation().y();
+  msg.position.z = pose.translation().z();
+  msg.orientation.w = pose.rotation().w();
+  msg.orientation.x = pose.rotation().x();
+  msg.orientation.y = pose.rotation().y();
+  msg.orientation.z = pose.rotation().z();
+  return msg;
+}
+
+geometry_msgs::Transform transformToMsg(const toro::Pose3& pose) {
+  const geometry_msgs::Pose p = poseToMsg(pose);
+  geometry_msgs::Transform t;
+  t.translation.x = p.position.x;
+  t.translation.y = p.position.y;
+  t.translation.z = p.position.z;
+  t.rotation = p.orientation;
+  return t;
+}
+
+std::string DefaultStddev::validate() const {
+  if (!(std::isfinite(translation_m) && translation_m > 0)) return "default translation stddev must be > 0";
+  if (!(std::isfinite(rotation_rad) && rotation_rad > 0)) return "default rotation stddev must be > 0";
+  return "";
+}
+
+toro::Matrix6 defaultInformation(const DefaultStddev& defaults) {
+  toro::Matrix6 info = toro::Matrix6::Zero();
+  const double wt = 1.0 / (defaults.translation_m * defaults.translation_m);
+  // Per rad^2 on the angle is 4x per unit^2 on the quaternion vector (see header).
+  const double wr = 4.0 / (defaults.rotation_rad * defaults.rotation_rad);
+  info.diagonal() << wt, wt, wt, wr, wr, wr;
+  return info;
+}
+
+toro::Matrix6 covarianceMatrix(const Covariance6& covariance) {
+  toro::Matrix6 m;
+  for (int r = 0; r < 6; ++r)
+    for (int c = 0; c < 6; ++c) m(r, c) = covariance[6 * r + c];
+  return m;
+}
+
+InformationResult informationFromCovariance(const toro::Matrix6& cov, const DefaultStddev& defaults) {
+  InformationResult out;
+  auto fallback = [&](const std::string& why) {
+    out.information = defaultInformation(defaults);
+    out.used_default = true;
+    out.reason = why;
+    return out;
+  };
+  if (!cov.allFinite()) return fallback("covariance is not finite");
+  if (cov.cwiseAbs().maxCoeff() == 0.0) return fallback("covariance is zero");
+  const double scale = cov.cwiseAbs().maxCoeff();
+  if ((cov - cov.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) return fallback("covariance is not symmetric");
+  const toro::Matrix6 sym = 0.5 * (cov + cov.transpose());
+  Eigen::LLT<toro::Matrix6> llt(sym);
+  // A tiny smallest eigenvalue relative to the largest gives an information of ~1e12 on a direction
+  // the sensor merely did not report on; treat it as unusable rather than trust it.
+  Eigen::SelfAdjointEigenSolver<toro::Matrix6> eig(sym, Eigen::EigenvaluesOnly);
+  if (llt.info() != Eigen::Success || eig.eigenvalues().minCoeff() <= 1e-12 * scale)
+    return fallback("covariance is not positive definite");
+  toro::Matrix6 info = llt.solve(toro::Matrix6::Identity());
+  info = 0.5 * (info + info.transpose());
+  info.block<3, 3>(3, 3) *= 4.0;
+  info.block<3, 3>(0, 3) *= 2.0;
+  info.block<3, 3>(3, 0) *= 2.0;
+  out.information = info;
+  return out;
+}
+
+InformationResult informationFromCovariance(const Covariance6& covariance, const DefaultStddev& defaults) {
+  return informationFromCovariance(covarianceMatrix(covariance), defaults);
+}
+
+std::string validateOdometry(const nav_msgs::Odometry& msg) {
+  if (msg.header.stamp.isZero()) return "stamp is zero";
+  const std::string pose = validatePose(msg.pose.pose);
+  return pose.empty() ? "" : "pose: " + pose;
+}
+
+std::string validateLoopClosure(const LoopClosure& msg) {
+  const bool by_id = msg.id_from >= 0 && msg.id_to >= 0;
+  if (by_id && msg.id_from == msg.id_to) return "id_from equals id_to";
+  if (!by_id && (msg.stamp_from.isZero() || msg.stamp_to.isZero()))
+    return "ids negative and a stamp is zero: names no pose";
+  if (!by_id && msg.stamp_from == msg.stamp_to) return "stamp_from equals stamp_to";
+  const std::string pose = validatePose(msg.from_T_to);
+  // An unusable covariance is not a reason to refuse: informationFromCovariance falls back to the
+  // configured defaults and says so.
+  return pose.empty() ? "" : "from_T_to: " + pose;
+}
+
+std::string stampString(const ros::Time& stamp) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%u.%09u", stamp.sec, stamp.nsec);
+  return buf;
+}
+
+}  // namespace toro_ros

@@ -1,0 +1,310 @@
+#include "toro_ros/pipeline/pipeline.h"
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/pipeline/msg_conversion.h"
+
+namespace toro_ros {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// Seconds of wall time spent in `f`; reported only, never used to decide anything.
+template <class F>
+double timed(F&& f) {
+  const auto t0 = std::chrono::steady_clock::now();
+  f();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+toro::TreeOptimizerOptions optimizerOptions(const PipelineOptions& o) {
+  toro::TreeOptimizerOptions out;
+  out.gamma = o.optimization.gamma;
+  return out;
+}
+
+std::string describe(const LoopClosure& msg) {
+  if (msg.id_from >= 0 && msg.id_to >= 0)
+    return "loop closure " + std::to_string(msg.id_from) + " -> " + std::to_string(msg.id_to);
+  return "loop closure " + stampString(msg.stamp_from) + " -> " + stampString(msg.stamp_to);
+}
+
+}  // namespace
+
+std::string OptimizationOptions::validate() const {
+  if (!(std::isfinite(gamma) && gamma > 0)) return "optimization gamma must be > 0";
+  if (full_iterations < 0) return "optimization full_iterations must be >= 0";
+  if (full_every_keyframes < 0) return "optimization full_every_keyframes must be >= 0";
+  if (!(std::isfinite(full_every_sec) && full_every_sec >= 0)) return "optimization full_every_sec must be >= 0";
+  if (service_default_iterations <= 0) return "optimization service_default_iterations must be > 0";
+  return "";
+}
+
+std::string PipelineOptions::validate() const {
+  for (const std::string& e : {keyframer.validate(), matcher.validate(), loop_closure_default_stddev.validate(),
+                               optimization.validate()})
+    if (!e.empty()) return e;
+  if (!(std::isfinite(time_jump_reset_sec) && time_jump_reset_sec >= 0)) return "time_jump_reset_sec must be >= 0";
+  return "";
+}
+
+Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn)
+    : options_(options),
+      warn_(std::move(warn)),
+      optimizer_(optimizerOptions(options)),
+      keyframer_(options.keyframer),
+      matcher_(options.matcher),
+      last_chi2_(kNaN) {
+  const std::string error = options.validate();
+  if (!error.empty()) throw std::invalid_argument("invalid pipeline options: " + error);
+}
+
+void Pipeline::refuse(const std::string& category, const std::string& detail) {
+  ++revision_;
+  ++counters_.refused_by_reason[category];
+  if (warn_) warn_(category + ": " + detail);
+}
+
+void Pipeline::refuseLoopClosure(const MatchResult& match, const LoopClosure& msg) {
+  ++counters_.loop_closures_refused;
+  refuse("loop closure: " + match.reason, describe(msg) + " refused: " + match.detail);
+}
+
+void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
+  ++counters_.odometry_messages;
+  const std::string invalid = validateOdometry(msg);
+  const ros::Time stamp = msg.header.stamp;
+  if (!invalid.empty()) {
+    ++counters_.odometry_refused;
+    refuse("odometry: invalid message", "odometry at " + stampString(stamp) + " refused: " + invalid);
+    return;
+  }
+  if (!newest_odometry_.isZero() && stamp <= newest_odometry_) {
+    const double back = (newest_odometry_ - stamp).toSec();
+    if (back > options_.time_jump_reset_sec) {
+      ++counters_.time_jump_resets;
+      reset("odometry stamp " + stampString(stamp) + " is " + std::to_string(back) + " s before the newest (" +
+            stampString(newest_odometry_) + "): time jumped back (bag restarted?), graph reset");
+    } else {
+      ++counters_.odometry_refused;
+      refuse("odometry: out of order", "odometry at " + stampString(stamp) + " is not after the newest " +
+                                           stampString(newest_odometry_));
+      return;
+    }
+  }
+  newest_odometry_ = stamp;
+  OdometrySample sample{stamp, poseFromMsg(msg.pose.pose), covarianceMatrix(msg.pose.covariance)};
+  if (keyframer_.isKeyframe(sample) || matcher_.wantsKeyframeAt(stamp, keyframes_)) addKeyframe(sample);
+  releasePending();
+}
+
+void Pipeline::addKeyframe(const OdometrySample& sample) {
+  const std::optional<OdometryStep> step = keyframer_.accept(sample);
+  const toro::NodeId id = next_id_++;
+  // A new keyframe continues from the corrected previous one, so the odometry constraint starts
+  // with zero residual and the correction made so far carries over.
+  const toro::Pose3 pose =
+      step ? optimizer_.graph().pose(keyframes_.newest().id) * step->previous_T_current : sample.odom_T_base;
+  const toro::NodeId previous = keyframes_.empty() ? -1 : keyframes_.newest().id;
+  optimizer_.addNode(id, pose);
+  ++revision_;
+  keyframes_.append(KeyframeRecord{id, sample.stamp, sample.odom_T_base});
+  if (last_full_stamp_.isZero()) last_full_stamp_ = sample.stamp;
+  ++keyframes_since_full_;
+  if (!step) return;
+  if (step->information.used_default && options_.keyframer.covariance_mode != OdometryCovarianceMode::kDefault)
+    ++counters_.refused_by_reason["odometry: covariance unusable, default used"];
+  toro::Constraint c{previous, id, step->previous_T_current, step->information.information};
+  optimizer_.addConstraint(c);  // endpoints exist and the information is SPD by construction
+  is_loop_closure_.push_back(false);
+}
+
+void Pipeline::handleLoopClosure(const LoopClosure& msg) {
+  ++counters_.loop_closures_received;
+  const MatchResult r = matcher_.submit(msg, keyframes_, newest_odometry_);
+  if (r.state == MatchResult::State::kMatched)
+    applyLoopClosure(msg, r);
+  else if (r.state == MatchResult::State::kRefused)
+    refuseLoopClosure(r, msg);
+}
+
+void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match) {
+  const InformationResult info = informationFromCovariance(msg.covariance, options_.loop_closure_default_stddev);
+  toro::Constraint c{match.from, match.to, poseFromMsg(msg.from_T_to), info.information};
+  try {
+    optimizer_.addConstraint(c);
+  } catch (const toro::GraphError& e) {
+    MatchResult refused = match;
+    refused.reason = refusal::kGraph;
+    refused.detail = e.what();
+    refuseLoopClosure(refused, msg);
+    return;
+  }
+  if (info.used_default) ++counters_.refused_by_reason["loop closure: covariance unusable, default used"];
+  is_loop_closure_.push_back(true);
+  ++revision_;
+  ++counters_.loop_closures_applied;
+  affected_pending_ = true;
+  ++loop_closures_since_full_;
+}
+
+void Pipeline::releasePending() {
+  if (matcher_.pending() == 0) return;
+  for (const auto& [msg, r] : matcher_.release(keyframes_, newest_odometry_)) {
+    if (r.state == MatchResult::State::kMatched)
+      applyLoopClosure(msg, r);
+    else
+      refuseLoopClosure(r, msg);
+  }
+}
+
+bool Pipeline::hasScheduledWork() const { return !paused_ && (affected_pending_ || full_passes_left_ > 0); }
+
+void Pipeline::runFullPass() {
+  last_optimization_sec_ = timed([&] { optimizer_.iterate(); });
+  ++revision_;
+  ++counters_.optimization_passes;
+  // A full pass covers everything added so far.
+  optimizer_.clearAffected();
+  affected_pending_ = false;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+}
+
+bool Pipeline::runScheduledOptimization() {
+  if (paused_ || optimizer_.graph().empty()) return false;
+  if (affected_pending_) {
+    last_optimization_sec_ = timed([&] { optimizer_.iterateAffected(1); });
+    ++revision_;
+    ++counters_.optimization_passes;
+    affected_pending_ = false;
+    last_chi2_ = toro::g2oChi2(optimizer_.graph());
+    return true;
+  }
+  if (full_passes_left_ == 0 && loop_closures_since_full_ > 0 && options_.optimization.full_iterations > 0) {
+    const auto& o = options_.optimization;
+    const bool by_count = o.full_every_keyframes > 0 &&
+                          keyframes_since_full_ >= static_cast<std::size_t>(o.full_every_keyframes);
+    const bool by_time = o.full_every_sec > 0 && (newest_odometry_ - last_full_stamp_).toSec() >= o.full_every_sec;
+    if (by_count || by_time) {
+      // Restart the learning-rate schedule: the graph changed since the last round, and a rate
+      // decayed over the whole run would leave new loop closures uncorrected.
+      optimizer_.setIteration(0);
+      full_passes_left_ = o.full_iterations;
+      loop_closures_since_full_ = 0;
+      keyframes_since_full_ = 0;
+      last_full_stamp_ = newest_odometry_;
+    }
+  }
+  if (full_passes_left_ == 0) return false;
+  --full_passes_left_;
+  runFullPass();
+  return true;
+}
+
+OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) {
+  OptimizeResult r;
+  if (mode == "finish") {
+    // TODO(issue 4): call the core's sparse second-order finish once its API exists.
+    r.message = "finish not available: the core's second-order finish is not built yet";
+    return r;
+  }
+  if (mode != "full" && !mode.empty()) {
+    r.message = "unknown mode '" + mode + "' (use \"full\" or \"finish\")";
+    return r;
+  }
+  if (optimizer_.graph().numConstraints() == 0) {
+    r.message = "nothing to optimise: the graph has no constraints";
+    return r;
+  }
+  r.iterations = iterations > 0 ? static_cast<int>(iterations) : options_.optimization.service_default_iterations;
+  r.chi2_before = toro::g2oChi2(optimizer_.graph());
+  optimizer_.setIteration(0);
+  r.time_sec = timed([&] {
+    for (int i = 0; i < r.iterations; ++i) optimizer_.iterate();
+  });
+  optimizer_.clearAffected();
+  ++revision_;
+  counters_.optimization_passes += r.iterations;
+  affected_pending_ = false;
+  full_passes_left_ = 0;
+  loop_closures_since_full_ = 0;
+  r.chi2_after = last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  last_optimization_sec_ = r.time_sec;
+  r.success = true;
+  r.message = std::to_string(r.iterations) + " full passes";
+  return r;
+}
+
+void Pipeline::clearGraph() {
+  for (const LoopClosure& msg : matcher_.clear()) {
+    MatchResult r;
+    r.reason = refusal::kReset;
+    r.detail = "the graph was reset while it waited";
+    refuseLoopClosure(r, msg);
+  }
+  optimizer_ = toro::TreeOptimizer(optimizerOptions(options_));
+  keyframer_.reset();
+  keyframes_.clear();
+  is_loop_closure_.clear();
+  newest_odometry_ = ros::Time();
+  next_id_ = 0;
+  affected_pending_ = false;
+  loop_closures_since_full_ = keyframes_since_full_ = 0;
+  last_full_stamp_ = ros::Time();
+  full_passes_left_ = 0;
+  last_chi2_ = kNaN;
+  ++counters_.resets;
+  ++epoch_;
+  ++revision_;
+}
+
+void Pipeline::reset(const std::string& why) {
+  if (warn_) warn_("reset: " + why);
+  clearGraph();
+}
+
+std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
+  auto s = std::make_shared<Snapshot>();
+  s->generation = ++generation_;
+  s->epoch = epoch_;
+  const toro::PoseGraph& g = optimizer_.graph();
+  const auto& records = keyframes_.records();
+  s->keyframes.reserve(records.size());
+  for (std::size_t i = 0; i < records.size(); ++i)
+    s->keyframes.push_back(SnapshotKeyframe{records[i].id, records[i].stamp, g.node(i).pose});
+  s->edges.reserve(g.numConstraints());
+  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
+    const toro::Constraint& k = g.constraints()[c];
+    const bool lc = is_loop_closure_[c];
+    s->edges.push_back(SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0});
+  }
+  if (!records.empty()) {
+    s->has_map_T_odom = true;
+    s->map_T_odom = g.node(records.size() - 1).pose * records.back().odom_T_base.inverse();
+    s->newest_stamp = records.back().stamp;
+  }
+  s->chi2 = last_chi2_;
+  s->last_optimization_sec = last_optimization_sec_;
+  s->pending_loop_closures = matcher_.pending();
+  s->counters = counters_;
+  return s;
+}
+
+PipelineStatus Pipeline::status() const {
+  PipelineStatus s;
+  s.keyframes = keyframes_.size();
+  s.constraints = optimizer_.graph().numConstraints();
+  s.pending_loop_closures = matcher_.pending();
+  s.last_chi2 = last_chi2_;
+  s.last_optimization_sec = last_optimization_sec_;
+  s.paused = paused_;
+  s.counters = counters_;
+  return s;
+}
+
+}  // namespace toro_ros
