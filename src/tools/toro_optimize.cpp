@@ -9,11 +9,14 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <functional>
 #include <iostream>
 #include <stdexcept>
 #include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
@@ -119,6 +122,17 @@ CliOptions parseArguments(const std::vector<std::string>& args) {
   return o;
 }
 
+// Fails before a long optimisation rather than after it when the result cannot be written.
+void checkOutputDirectory(const std::string& output) {
+  if (output.empty()) return;
+  std::filesystem::path dir = std::filesystem::path(output).parent_path();
+  if (dir.empty()) dir = ".";
+  if (!std::filesystem::is_directory(dir) || ::access(dir.c_str(), W_OK) != 0) {
+    throw std::runtime_error("cannot write '" + output + "': directory '" + dir.string() +
+                             "' does not exist or is not writable");
+  }
+}
+
 // ---- measuring -------------------------------------------------------------------------------
 
 using Clock = std::chrono::steady_clock;
@@ -208,6 +222,7 @@ bool decideChain(const CliOptions& o, const toro::ReadReport& report) {
 }
 
 int optimise(CliOptions o) {
+  checkOutputDirectory(o.output);
   toro::ReadOptions read_options;
   read_options.toro_information_order = o.toro_order;
   toro::ReadReport report;

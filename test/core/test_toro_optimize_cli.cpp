@@ -1,0 +1,143 @@
+// Runs the built toro_optimize binary (path from CMake) on the bundled smallGrid3D.g2o and on bad
+// input, and checks exit codes and what it prints.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/metrics.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Result {
+  int exit_code;
+  std::string out;
+  std::string err;
+};
+
+class ToroOptimizeCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("toro_optimize_cli_" + std::to_string(::getpid()));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  Result run(const std::string& arguments) const {
+    const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
+    const std::string command =
+        std::string(TORO_OPTIMIZE_BIN) + " " + arguments + " > " + out.string() + " 2> " + err.string();
+    const int status = std::system(command.c_str());
+    return Result{WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(out), slurp(err)};
+  }
+
+  static std::string slurp(const fs::path& path) {
+    std::ifstream in(path);
+    std::stringstream s;
+    s << in.rdbuf();
+    return s.str();
+  }
+
+  fs::path dir_;
+};
+
+const std::string kSmallGrid = std::string(TORO_TEST_DATA_DIR) + "/smallGrid3D.g2o";
+
+// The number after `key` on the first line containing `line_start` (NaN if absent).
+double numberAfter(const std::string& text, const std::string& line_start, const std::string& key) {
+  std::istringstream lines(text);
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (line.find(line_start) == std::string::npos) continue;
+    const std::size_t at = line.find(key);
+    if (at == std::string::npos) continue;
+    return std::stod(line.substr(at + key.size()));
+  }
+  return std::nan("");
+}
+
+std::vector<std::string> linesStartingWith(const std::string& text, const std::string& prefix) {
+  std::vector<std::string> out;
+  std::istringstream lines(text);
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (line.rfind(prefix, 0) == 0) out.push_back(line);
+  }
+  return out;
+}
+
+}  // namespace
+
+TEST_F(ToroOptimizeCli, OptimisesReportsEveryIterationAndWritesTheResult) {
+  const fs::path output = dir_ / "result.g2o";
+  const Result r = run("-i 5 -o " + output.string() + " " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(r.err.empty()) << r.err;
+  EXPECT_NE(r.out.find("125 vertices, 297 edges"), std::string::npos) << r.out;
+  EXPECT_EQ(linesStartingWith(r.out, "tree ").size(), 5u) << r.out;
+
+  const double before = numberAfter(r.out, "before", "g2o chi2");
+  const double after = numberAfter(r.out, "after", "g2o chi2");
+  ASSERT_TRUE(std::isfinite(before) && std::isfinite(after)) << r.out;
+  EXPECT_LT(after, before);
+  // The printed final chi2 is the chi2 of the written graph (g2o at 17 digits is exact).
+  const toro::PoseGraph written = toro::readGraph(output.string());
+  EXPECT_NEAR(toro::g2oChi2(written), after, 1e-8 * after);
+  EXPECT_EQ(written.numNodes(), 125u);
+  EXPECT_EQ(written.numConstraints(), 297u);
+  // The last per-iteration line reports the same chi2 as the summary.
+  const std::string last = linesStartingWith(r.out, "tree ").back();
+  std::istringstream fields(last);
+  std::string phase;
+  double iteration = 0, seconds = 0, chi2 = 0;
+  fields >> phase >> iteration >> seconds >> chi2;
+  EXPECT_EQ(iteration, 5);
+  EXPECT_NEAR(chi2, after, 1e-7 * after);
+}
+
+TEST_F(ToroOptimizeCli, QuietPrintsOnlyTheSummary) {
+  const Result r = run("-q -i 3 --initial-guess file " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(linesStartingWith(r.out, "tree ").empty()) << r.out;
+  ASSERT_EQ(linesStartingWith(r.out, "summary:").size(), 1u) << r.out;
+  EXPECT_NE(r.out.find("3 iterations, initial guess file"), std::string::npos) << r.out;
+  // With the file's poses the chi2 before is the chi2 of the file as given.
+  const double file_chi2 = toro::g2oChi2(toro::readGraph(kSmallGrid));
+  EXPECT_NEAR(numberAfter(r.out, "before", "g2o chi2"), file_chi2, 1e-9 * file_chi2);  // printed to 10 digits
+}
+
+TEST_F(ToroOptimizeCli, MalformedFileGivesFileLineMessageAndNonZeroExit) {
+  const fs::path bad = dir_ / "bad.g2o";
+  std::ofstream(bad) << "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n"
+                        "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 abc 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n";
+  const Result r = run(bad.string());
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(r.err, "toro_optimize: " + bad.string() + ":3: EDGE_SE3:QUAT field 9 (qw): 'abc' is not a number\n");
+  EXPECT_TRUE(r.out.empty()) << r.out;
+}
+
+TEST_F(ToroOptimizeCli, BadArgumentsAndMissingFile) {
+  Result r = run("-i many " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(r.err, "toro_optimize: -i needs a non-negative integer, got 'many' (see --help)\n");
+  r = run("--toro-info-order sideways " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--toro-info-order must be translation-first or rotation-first"), std::string::npos);
+  r = run((dir_ / "missing.g2o").string());
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("missing.g2o: cannot open for reading: No such file or directory"), std::string::npos)
+      << r.err;
+  r = run("--help");
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_EQ(r.out.rfind("usage: toro_optimize", 0), 0u);
+}
