@@ -125,9 +125,16 @@ void ParameterTree::addConstraint(const PoseGraph& graph, std::size_t constraint
     rebuildKeepingNeighbours(graph, reparented);
     return;
   }
-  // In a graph where the smallest-neighbour rule spans every component, a new constraint can only
-  // change the parent of its larger-id end, and the rule keeps spanning (see header).
+  // While the smallest-neighbour rule spans every component, a new constraint can only change the
+  // parent of its larger-id end.  The rule stops spanning when the constraint joins two components
+  // and the larger-id end is not the root of its own: that root then keeps no smaller neighbour
+  // although it is no longer its component's smallest id; only a rebuild handles that.
   if (graph.node(u).id > graph.node(v).id) std::swap(u, v);
+  const Index root_u = rootOf(u), root_v = rootOf(v);
+  if (root_u != root_v && root_v != v) {
+    rebuildKeepingNeighbours(graph, reparented);
+    return;
+  }
   const Index old_parent = parent_[v];
   if (old_parent != kNoNode && graph.node(old_parent).id <= graph.node(u).id) return;
   if (old_parent != kNoNode) detach(v);
@@ -135,6 +142,11 @@ void ParameterTree::addConstraint(const PoseGraph& graph, std::size_t constraint
   children_[u].push_back(v);
   setLevelsBelow(v);
   if (reparented) reparented->push_back(v);
+}
+
+std::size_t ParameterTree::rootOf(std::size_t node) const {
+  while (parent_[node] != kNoNode) node = parent_[node];
+  return node;
 }
 
 void ParameterTree::rebuildKeepingNeighbours(const PoseGraph& graph, std::vector<std::size_t>* reparented) {

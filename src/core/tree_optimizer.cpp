@@ -142,11 +142,21 @@ IterationStats TreeOptimizer::iterate() {
   ++iteration_;
   const double learning_rate = 1.0 / (options_.gamma * static_cast<double>(iteration_));
   runPass(order_, learning_rate);
+  new_constraints_.clear();  // a full pass has covered them
   return IterationStats{iteration_, order_.size(), learning_rate};
 }
 
 void TreeOptimizer::runPass(const std::vector<std::size_t>& constraints, double learning_rate) {
   for (std::size_t c : constraints) updateConstraint(c, learning_rate);
+  recomputePoses();
+}
+
+void TreeOptimizer::applyUpdate(std::size_t constraint_index, double learning_rate) {
+  if (constraint_index >= graph_.numConstraints()) {
+    throw std::out_of_range("TreeOptimizer::applyUpdate: no constraint " + std::to_string(constraint_index));
+  }
+  if (structure_dirty_) refreshStructure();
+  updateConstraint(constraint_index, learning_rate);
   recomputePoses();
 }
 
@@ -356,7 +366,6 @@ IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteratio
     }
   }
   for (std::size_t c : affected) affected_mark_[c] = 0;
-  new_constraints_.clear();
   affected = sortedByTopLevel(std::move(affected));
   const double learning_rate =
       1.0 / (options_.gamma * static_cast<double>(std::max<std::size_t>(1, learning_rate_iteration)));

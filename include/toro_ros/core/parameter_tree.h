@@ -60,6 +60,7 @@ class ParameterTree {
  private:
   void setLevelsBelow(std::size_t node);
   void detach(std::size_t node);
+  std::size_t rootOf(std::size_t node) const;
   void buildByGrowing(const PoseGraph& graph, const std::vector<std::size_t>& by_id);
   void rebuildKeepingNeighbours(const PoseGraph& graph, std::vector<std::size_t>* reparented);
   // Smallest-id neighbour of `node` among all its neighbours (kNone if isolated).

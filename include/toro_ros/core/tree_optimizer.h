@@ -62,12 +62,17 @@ class TreeOptimizer {
   std::size_t addConstraint(const Constraint& constraint);
 
   // One full pass over all constraints; the learning rate decays with the iteration counter.
+  // Afterwards no constraint counts as new for iterateAffected().
   IterationStats iterate();
-  // One pass over the constraints affected by what was added since the last call of this function
-  // (the new constraints and every constraint touching a node on their tree paths), with the given
-  // iteration index for the learning rate.  Does not advance the iteration counter.
+  // One pass over the constraints affected by what was added since the last full pass (the new
+  // constraints and every constraint touching a node on their tree paths), with the learning rate
+  // of the given iteration index.  Does not advance the iteration counter; call it repeatedly with
+  // growing indices to settle a new loop closure.
   IterationStats iterateAffected(std::size_t learning_rate_iteration = 1);
-  // Forgets what counts as "new" for iterateAffected().
+  // One update of one constraint with the given learning rate (the building block of the passes
+  // above), followed by a refresh of all poses.  For tests and custom schedules.
+  void applyUpdate(std::size_t constraint_index, double learning_rate);
+  // Forgets what counts as "new" for iterateAffected() without a full pass.
   void clearAffected();
 
   // The graph with the current pose estimates.
