@@ -38,7 +38,8 @@ constexpr const char* kUsage =
     "  -o OUTPUT                 write the result; format by extension (.graph/.toro: TORO, else g2o)\n"
     "  --initial-guess chain|file  chain the measurements along the tree (default) or keep the\n"
     "                            file's poses (files without VERTEX lines always chain)\n"
-    "  --gamma G                 learning rate of iteration k is 1/(G k) (default 1)\n"
+    "  --gamma G                 rotational learning rate of iteration k is 1/(G k) (default 1;\n"
+    "                            the translational rate has its own constant, tree_optimizer.h)\n"
     "  --toro-info-order translation-first|rotation-first\n"
     "                            order of the EDGE3 information matrix, for reading and writing\n"
     "                            (default translation-first, as g2o and HOG-Man read it)\n"
@@ -207,8 +208,13 @@ void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measu
   printMeasures("before", before);
   printMeasures("after", after);
   const double per_iteration = log.iterations ? log.optimise_seconds / double(log.iterations) : 0.0;
-  std::printf("  time    setup %.4f s, optimisation %.4f s (%.3f ms/iteration), metrics %.4f s (not included)\n",
-              log.setup_seconds, log.optimise_seconds, 1e3 * per_iteration, log.measure_seconds);
+  std::printf("  time    setup %.4f s, optimisation %.4f s (%.3f ms/iteration), ", log.setup_seconds,
+              log.optimise_seconds, 1e3 * per_iteration);
+  if (o.quiet) {
+    std::printf("per-iteration metrics off (-q)\n");
+  } else {
+    std::printf("per-iteration metrics %.4f s (not included)\n", log.measure_seconds);
+  }
 }
 
 // Chaining is forced when the file gives no pose for some node.
