@@ -16,9 +16,9 @@ constexpr const char* kEdgeSe2 = "EDGE_SE2";
 constexpr const char* kFix = "FIX";
 
 constexpr const char* kPose3Names[7] = {"x", "y", "z", "qx", "qy", "qz", "qw"};
-constexpr const char* kInformation3Names[21] = {
-    "I11", "I12", "I13", "I14", "I15", "I16", "I22", "I23", "I24", "I25", "I26",
-    "I33", "I34", "I35", "I36", "I44", "I45", "I46", "I55", "I56", "I66"};
+constexpr const char* kInformation3Names[21] = {"I11", "I12", "I13", "I14", "I15", "I16", "I22",
+                                                "I23", "I24", "I25", "I26", "I33", "I34", "I35",
+                                                "I36", "I44", "I45", "I46", "I55", "I56", "I66"};
 constexpr const char* kPose2Names[3] = {"x", "y", "theta"};
 constexpr const char* kInformation2Names[6] = {"I11", "I12", "I13", "I22", "I23", "I33"};
 

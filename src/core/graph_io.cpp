@@ -119,8 +119,9 @@ void LineReader::processLine(std::string_view text, std::size_t number) {
   const std::string_view tag = tokens_[0];
   if (!isTag(tag)) {
     std::string shown(tag.substr(0, 40));
-    throw ParseError(source_, number,
-                     "'" + shown + "' is not a tag (a data line starts with a tag such as VERTEX_SE3:QUAT or EDGE3)");
+    throw ParseError(
+        source_, number,
+        "'" + shown + "' is not a tag (a data line starts with a tag such as VERTEX_SE3:QUAT or EDGE3)");
   }
   const bool g2o = detail::isG2oTag(tag);
   if (!g2o && !detail::isToroTag(tag)) {
@@ -149,8 +150,9 @@ void addVertices(const detail::ParsedLines& parsed, const std::string& source, P
   for (const detail::VertexRecord& v : parsed.vertices) {
     if (graph.hasNode(v.id)) {
       const std::size_t first = parsed.vertices[graph.indexOf(v.id)].line;
-      throw ParseError(source, v.line,
-                       "duplicate VERTEX id " + std::to_string(v.id) + " (first on line " + std::to_string(first) + ")");
+      throw ParseError(
+          source, v.line,
+          "duplicate VERTEX id " + std::to_string(v.id) + " (first on line " + std::to_string(first) + ")");
     }
     graph.addNode(v.id, v.pose);
   }
@@ -193,8 +195,9 @@ void addFixes(const detail::ParsedLines& parsed, const std::string& source, Pose
   std::set<NodeId> fixed;
   for (const detail::FixRecord& f : parsed.fixes) {
     if (!graph.hasNode(f.id)) {
-      throw ParseError(source, f.line,
-                       "FIX field " + std::to_string(f.field) + " (id): unknown node " + std::to_string(f.id));
+      throw ParseError(
+          source, f.line,
+          "FIX field " + std::to_string(f.field) + " (id): unknown node " + std::to_string(f.id));
     }
     if (fixed.insert(f.id).second) graph.addFixed(f.id);
   }
@@ -262,7 +265,8 @@ std::string describeReport(const ReadReport& r) {
     for (const auto& [tag, count] : r.skipped_tags) s << ' ' << tag << " x" << count;
   }
   if (!r.nodes_without_vertex.empty()) {
-    s << "\n  " << r.nodes_without_vertex.size() << " nodes without a VERTEX line (identity pose; chain the guess)";
+    s << "\n  " << r.nodes_without_vertex.size()
+      << " nodes without a VERTEX line (identity pose; chain the guess)";
   }
   if (r.edges_without_information > 0) {
     s << "\n  " << r.edges_without_information << " edges without an information matrix (identity used)";

@@ -58,8 +58,7 @@ double LineFields::number(std::size_t index, const char* name) const {
   return value;
 }
 
-void LineFields::numbers(std::size_t first, std::size_t count, const char* const* names,
-                         double* out) const {
+void LineFields::numbers(std::size_t first, std::size_t count, const char* const* names, double* out) const {
   for (std::size_t k = 0; k < count; ++k) out[k] = number(first + k, names[k]);
 }
 
@@ -176,8 +175,7 @@ LineWriter& LineWriter::id(NodeId id) {
 
 LineWriter& LineWriter::number(double value) {
   char text[64];
-  const auto result =
-      std::to_chars(text, text + sizeof(text), value, std::chars_format::general, precision_);
+  const auto result = std::to_chars(text, text + sizeof(text), value, std::chars_format::general, precision_);
   buffer_ += ' ';
   buffer_.append(text, result.ptr);
   return *this;

@@ -15,9 +15,9 @@ constexpr const char* kVertex2Short = "VERTEX";
 constexpr const char* kEdge2Short = "EDGE";
 
 constexpr const char* kPose3Names[6] = {"x", "y", "z", "roll", "pitch", "yaw"};
-constexpr const char* kInformation3Names[21] = {
-    "m00", "m01", "m02", "m03", "m04", "m05", "m11", "m12", "m13", "m14", "m15",
-    "m22", "m23", "m24", "m25", "m33", "m34", "m35", "m44", "m45", "m55"};
+constexpr const char* kInformation3Names[21] = {"m00", "m01", "m02", "m03", "m04", "m05", "m11",
+                                                "m12", "m13", "m14", "m15", "m22", "m23", "m24",
+                                                "m25", "m33", "m34", "m35", "m44", "m45", "m55"};
 constexpr const char* kPose2Names[3] = {"x", "y", "theta"};
 // TORO 2D order: xx xy yy θθ xθ yθ.
 constexpr const char* kInformation2Names[6] = {"m00", "m01", "m11", "m22", "m02", "m12"};
@@ -30,7 +30,8 @@ Matrix6 informationFromToro(const Matrix6& file, ToroInformationOrder order) {
   if (order == ToroInformationOrder::kTranslationFirst) return angleToQuaternionUnits(file);
   Matrix6 translation_first;
   for (int i = 0; i < 6; ++i) {
-    for (int j = 0; j < 6; ++j) translation_first(i, j) = file(kRotationFirstIndex[i], kRotationFirstIndex[j]);
+    for (int j = 0; j < 6; ++j)
+      translation_first(i, j) = file(kRotationFirstIndex[i], kRotationFirstIndex[j]);
   }
   return angleToQuaternionUnits(translation_first);
 }
@@ -40,7 +41,8 @@ Matrix6 informationToToro(const Matrix6& information, ToroInformationOrder order
   if (order == ToroInformationOrder::kTranslationFirst) return translation_first;
   Matrix6 file;
   for (int i = 0; i < 6; ++i) {
-    for (int j = 0; j < 6; ++j) file(kRotationFirstIndex[i], kRotationFirstIndex[j]) = translation_first(i, j);
+    for (int j = 0; j < 6; ++j)
+      file(kRotationFirstIndex[i], kRotationFirstIndex[j]) = translation_first(i, j);
   }
   return file;
 }

@@ -102,7 +102,8 @@ CliOptions parseArguments(const std::vector<std::string>& args) {
       o.gamma = parsePositive(a, value());
     } else if (a == "--initial-guess") {
       const std::string& v = value();
-      if (v != "chain" && v != "file") throw UsageError("--initial-guess must be chain or file, got '" + v + "'");
+      if (v != "chain" && v != "file")
+        throw UsageError("--initial-guess must be chain or file, got '" + v + "'");
       o.chain_guess = v == "chain";
     } else if (a == "--toro-info-order") {
       const std::string& v = value();
@@ -196,9 +197,10 @@ void runPhase(const Phase& phase, bool report_each, RunLog& log) {
 // ---- the run ---------------------------------------------------------------------------------
 
 void printMeasures(const char* label, const Measures& m) {
-  std::printf("  %-7s g2o chi2 %.10g   SE-Sync %.10g   TORO error %.6g   max rotation %.6g rad   "
-              "max translation %.6g\n",
-              label, m.chi2, m.se_sync, m.toro.sum, m.toro.max_rotation, m.toro.max_translation);
+  std::printf(
+      "  %-7s g2o chi2 %.10g   SE-Sync %.10g   TORO error %.6g   max rotation %.6g rad   "
+      "max translation %.6g\n",
+      label, m.chi2, m.se_sync, m.toro.sum, m.toro.max_rotation, m.toro.max_translation);
 }
 
 void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measures& before,
@@ -234,7 +236,8 @@ int optimise(CliOptions o) {
   toro::ReadReport report;
   const toro::PoseGraph graph = toro::readGraph(o.input, read_options, &report);
   if (!o.quiet) std::printf("%s\n", toro::describeReport(report).c_str());
-  if (graph.numConstraints() == 0) throw std::runtime_error(o.input + ": no constraints, nothing to optimise");
+  if (graph.numConstraints() == 0)
+    throw std::runtime_error(o.input + ": no constraints, nothing to optimise");
   o.chain_guess = decideChain(o, report);
 
   toro::TreeOptimizerOptions tree_options;
@@ -244,7 +247,8 @@ int optimise(CliOptions o) {
   toro::TreeOptimizer optimizer(tree_options);
   RunLog log;
   const Clock::time_point setup_start = Clock::now();
-  optimizer.setGraph(graph, o.chain_guess ? toro::InitialGuess::kChainOnTree : toro::InitialGuess::kFromGraph);
+  optimizer.setGraph(graph,
+                     o.chain_guess ? toro::InitialGuess::kChainOnTree : toro::InitialGuess::kFromGraph);
   log.setup_seconds = secondsSince(setup_start);
 
   const Measures before = measure(optimizer.graph());
@@ -252,9 +256,8 @@ int optimise(CliOptions o) {
     printHeader();
     printLine("start", 0, 0.0, before);
   }
-  runPhase(Phase{"tree", o.iterations, [&] { optimizer.iterate(); }, [&]() -> const toro::PoseGraph& {
-                   return optimizer.graph();
-                 }},
+  runPhase(Phase{"tree", o.iterations, [&] { optimizer.iterate(); },
+                 [&]() -> const toro::PoseGraph& { return optimizer.graph(); }},
            !o.quiet, log);
   printSummary(o, graph, before, measure(optimizer.graph()), log);
   if (!o.output.empty()) {

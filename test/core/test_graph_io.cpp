@@ -42,11 +42,11 @@ ParseError parseError(const std::string& text, const std::string& name, const Re
   return ParseError(name, 0, "none");
 }
 
-#define EXPECT_PARSE_ERROR(text, name, line_number, wording)                               \
-  do {                                                                                     \
-    const ParseError e_ = parseError(text, name);                                          \
-    EXPECT_EQ(e_.line(), std::size_t(line_number)) << e_.what();                           \
-    EXPECT_NE(std::string(e_.what()).find(wording), std::string::npos) << e_.what();       \
+#define EXPECT_PARSE_ERROR(text, name, line_number, wording)                              \
+  do {                                                                                    \
+    const ParseError e_ = parseError(text, name);                                         \
+    EXPECT_EQ(e_.line(), std::size_t(line_number)) << e_.what();                          \
+    EXPECT_NE(std::string(e_.what()).find(wording), std::string::npos) << e_.what();      \
     EXPECT_EQ(std::string(e_.what()).rfind(std::string(name) + ":", 0), 0u) << e_.what(); \
   } while (0)
 
@@ -114,9 +114,9 @@ TEST(GraphIo, G2o2dLiftedAndPlanarQuadraticFormKept) {
   expected(1, 1) = 20;
   expected(0, 5) = expected(5, 0) = 2 * 2;  // cross x2
   expected(1, 5) = expected(5, 1) = 2 * 3;
-  expected(5, 5) = 4 * 30;                  // rotation x4
-  expected(2, 2) = 15;                      // mean of xx, yy
-  expected(3, 3) = expected(4, 4) = 4 * 30; // roll/pitch = θθ
+  expected(5, 5) = 4 * 30;                   // rotation x4
+  expected(2, 2) = 15;                       // mean of xx, yy
+  expected(3, 3) = expected(4, 4) = 4 * 30;  // roll/pitch = θθ
   EXPECT_EQ(I, expected);
   // For a planar residual (ex, ey, dθ) the internal error (ex, ey, 0, 0, 0, sin(dθ/2)) weighs
   // (nearly) what the planar information gives: the chi2 is kept.
@@ -138,15 +138,15 @@ TEST(GraphIo, ToroInformationOrderBothOptions) {
   ReadOptions options;
   const PoseGraph t = readText(text, "a.graph", options);
   Matrix6 expected_t = diag6(1, 2, 3, 4 * 4, 4 * 5, 4 * 6);
-  expected_t(0, 1) = expected_t(1, 0) = 0.1;        // x-y
-  expected_t(0, 4) = expected_t(4, 0) = 2 * 0.2;    // x-pitch cross
+  expected_t(0, 1) = expected_t(1, 0) = 0.1;      // x-y
+  expected_t(0, 4) = expected_t(4, 0) = 2 * 0.2;  // x-pitch cross
   EXPECT_EQ(t.constraints()[0].information, expected_t);
 
   options.toro_information_order = ToroInformationOrder::kRotationFirst;
   const PoseGraph r = readText(text, "a.graph", options);
   Matrix6 expected_r = diag6(4, 5, 6, 4 * 1, 4 * 2, 4 * 3);
-  expected_r(3, 4) = expected_r(4, 3) = 4 * 0.1;    // roll-pitch
-  expected_r(1, 3) = expected_r(3, 1) = 2 * 0.2;    // y-roll cross
+  expected_r(3, 4) = expected_r(4, 3) = 4 * 0.1;  // roll-pitch
+  expected_r(1, 3) = expected_r(3, 1) = 2 * 0.2;  // y-roll cross
   EXPECT_EQ(r.constraints()[0].information, expected_r);
 
   // Poses: x y z roll pitch yaw with R = Rz Ry Rx.
@@ -192,8 +192,10 @@ TEST(GraphIo, FormatDetectedFromContentAndExtension) {
   readText("VERTEX_SE2 0 0 0 0\n", "data.txt", {}, &report);
   EXPECT_EQ(report.format, GraphFormat::kG2o);
   // A tag of the other format is an error, not a silent skip.
-  EXPECT_PARSE_ERROR("VERTEX3 0 0 0 0 0 0 0\n", "x.g2o", 1, "VERTEX3: a TORO tag, but the file is read as g2o (by its extension)");
-  EXPECT_PARSE_ERROR("EDGE3 0 1 1 0 0 0 0 0\nVERTEX_SE2 0 0 0 0\n", "x.txt", 2, "a g2o tag, but the file is read as TORO");
+  EXPECT_PARSE_ERROR("VERTEX3 0 0 0 0 0 0 0\n", "x.g2o", 1,
+                     "VERTEX3: a TORO tag, but the file is read as g2o (by its extension)");
+  EXPECT_PARSE_ERROR("EDGE3 0 1 1 0 0 0 0 0\nVERTEX_SE2 0 0 0 0\n", "x.txt", 2,
+                     "a g2o tag, but the file is read as TORO");
   ReadOptions g2o;
   g2o.format = GraphFormat::kG2o;
   EXPECT_THROW(readText("VERTEX3 0 0 0 0 0 0 0\n", "x.graph", g2o), ParseError);
@@ -231,26 +233,31 @@ TEST(GraphIo, EdgesWithoutVerticesAndWithoutInformation) {
 }
 
 TEST(GraphIo, MalformedTooFewAndTooManyFields) {
-  EXPECT_PARSE_ERROR("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n"
-                     "EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 0 0\n",
-                     "sphere.g2o", 3, "sphere.g2o:3: EDGE_SE3:QUAT: expected 30 fields, got 12");
+  EXPECT_PARSE_ERROR(
+      "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n"
+      "EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 0 0\n",
+      "sphere.g2o", 3, "sphere.g2o:3: EDGE_SE3:QUAT: expected 30 fields, got 12");
   EXPECT_PARSE_ERROR("VERTEX2 0 0 0 0 9\n", "w.graph", 1, "VERTEX2: expected 4 fields, got 5");
-  EXPECT_PARSE_ERROR("EDGE3 0 1 1 2 3\n", "w.graph", 1, "EDGE3: expected 29 fields (or 8 without an information matrix), got 5");
+  EXPECT_PARSE_ERROR("EDGE3 0 1 1 2 3\n", "w.graph", 1,
+                     "EDGE3: expected 29 fields (or 8 without an information matrix), got 5");
   EXPECT_PARSE_ERROR("FIX\n", "w.g2o", 1, "FIX: expected at least 1 field");
 }
 
 TEST(GraphIo, MalformedNotANumber) {
-  EXPECT_PARSE_ERROR("\n\nEDGE_SE3:QUAT 0 1 1 2 3 0 0 0 abc" + std::string(kIdentityInfo3) + "\n", "sphere.g2o", 3,
-                     "sphere.g2o:3: EDGE_SE3:QUAT field 9 (qw): 'abc' is not a number");
-  EXPECT_PARSE_ERROR("VERTEX_SE2 1.5 0 0 0\n", "a.g2o", 1, "VERTEX_SE2 field 1 (id): '1.5' is not an integer id");
-  EXPECT_PARSE_ERROR("EDGE2 0 1 1 0 0 1 0 1 1 1x 0\n", "a.graph", 1, "EDGE2 field 10 (m02): '1x' is not a number");
+  EXPECT_PARSE_ERROR("\n\nEDGE_SE3:QUAT 0 1 1 2 3 0 0 0 abc" + std::string(kIdentityInfo3) + "\n",
+                     "sphere.g2o", 3, "sphere.g2o:3: EDGE_SE3:QUAT field 9 (qw): 'abc' is not a number");
+  EXPECT_PARSE_ERROR("VERTEX_SE2 1.5 0 0 0\n", "a.g2o", 1,
+                     "VERTEX_SE2 field 1 (id): '1.5' is not an integer id");
+  EXPECT_PARSE_ERROR("EDGE2 0 1 1 0 0 1 0 1 1 1x 0\n", "a.graph", 1,
+                     "EDGE2 field 10 (m02): '1x' is not a number");
 }
 
 TEST(GraphIo, MalformedNonFinite) {
   EXPECT_PARSE_ERROR("VERTEX3 0 0 nan 0 0 0 0\n", "a.graph", 1, "VERTEX3 field 3 (y): 'nan' is not finite");
-  EXPECT_PARSE_ERROR("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 inf 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n", "a.g2o", 1,
-                     "EDGE_SE3:QUAT field 10 (I11): 'inf' is not finite");
-  EXPECT_PARSE_ERROR("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1e999\n", "a.g2o", 1, "field 8 (qw): '1e999' is out of the double range");
+  EXPECT_PARSE_ERROR("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 inf 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n", "a.g2o",
+                     1, "EDGE_SE3:QUAT field 10 (I11): 'inf' is not finite");
+  EXPECT_PARSE_ERROR("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1e999\n", "a.g2o", 1,
+                     "field 8 (qw): '1e999' is out of the double range");
   EXPECT_PARSE_ERROR("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 0\n", "a.g2o", 1, "the quaternion is zero");
 }
 
@@ -275,8 +282,8 @@ TEST(GraphIo, MalformedFixOfUnknownNode) {
 TEST(GraphIo, AsymmetricInformationCannotComeFromAFileAndIsNotRepaired) {
   // Every format stores the upper triangle only; the reader mirrors it (TORO's own 3D loader did
   // not, leaving zeros below the diagonal).
-  const PoseGraph g = readText(std::string("EDGE3 0 1 1 0 0 0 0 0 1 0.5 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n"),
-                               "a.graph");
+  const PoseGraph g =
+      readText(std::string("EDGE3 0 1 1 0 0 0 0 0 1 0.5 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n"), "a.graph");
   EXPECT_EQ(g.constraints()[0].information(1, 0), 0.5);
   Matrix6 asymmetric = Matrix6::Identity();
   asymmetric(0, 1) = 0.5;
@@ -293,9 +300,10 @@ TEST(GraphIo, IndefiniteInformationRefusedOrRepaired) {
   off.repair_information = false;
   const ParseError e = parseError(text, "cubicle.g2o", off);
   EXPECT_EQ(e.line(), 3u);
-  EXPECT_NE(std::string(e.what()).find("cubicle.g2o:3: EDGE_SE3:QUAT: constraint 0 -> 1: information matrix is "
-                                       "not positive definite (information repair is off)"),
-            std::string::npos)
+  EXPECT_NE(
+      std::string(e.what()).find("cubicle.g2o:3: EDGE_SE3:QUAT: constraint 0 -> 1: information matrix is "
+                                 "not positive definite (information repair is off)"),
+      std::string::npos)
       << e.what();
 
   ReadReport report;
@@ -318,7 +326,8 @@ TEST(GraphIo, IndefiniteInformationRefusedOrRepaired) {
 }
 
 TEST(GraphIo, NegativeDefiniteInformationCannotBeRepaired) {
-  EXPECT_PARSE_ERROR("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 -1 0 0 0 0 0 -1 0 0 0 0 -1 0 0 0 -1 0 0 -1 0 -1\n", "a.g2o", 1,
+  EXPECT_PARSE_ERROR("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 -1 0 0 0 0 0 -1 0 0 0 0 -1 0 0 0 -1 0 0 -1 0 -1\n",
+                     "a.g2o", 1,
                      "EDGE_SE3:QUAT: constraint 0 -> 1: information matrix is not positive definite");
 }
 
@@ -328,14 +337,18 @@ TEST(GraphIo, MissingFileAndDirectory) {
     FAIL() << "no error";
   } catch (const ParseError& e) {
     EXPECT_EQ(e.line(), 0u);
-    EXPECT_EQ(std::string(e.what()), "/nonexistent/dir/graph.g2o: cannot open for reading: No such file or directory");
+    EXPECT_EQ(std::string(e.what()),
+              "/nonexistent/dir/graph.g2o: cannot open for reading: No such file or directory");
   }
   EXPECT_THROW(readGraph(std::filesystem::temp_directory_path().string()), ParseError);
 }
 
 TEST(GraphIo, GarbageBinaryAndNonTagLines) {
   std::string garbage = "VERTEX_SE2 0 0 0 0\n";
-  garbage += std::string("\x7f" "ELF\x02\x01\x01\0\0\0", 10);
+  garbage += std::string(
+      "\x7f"
+      "ELF\x02\x01\x01\0\0\0",
+      10);
   EXPECT_PARSE_ERROR(garbage, "a.out", 2, "binary data (byte 0x7f at column 1): not a text graph file");
   EXPECT_PARSE_ERROR("1 2 3\n", "a.g2o", 1, "'1' is not a tag");
   EXPECT_PARSE_ERROR("\xc3\xa9t\xc3\xa9 1\n", "a.g2o", 1, "is not a tag");
@@ -357,8 +370,9 @@ PoseGraph randomGraph(std::mt19937& rng, bool planar) {
   std::normal_distribution<double> n(0.0, 1.0);
   PoseGraph g;
   for (NodeId id = 0; id < 6; ++id) {
-    const Pose3 p = planar ? Pose3::fromRollPitchYaw(n(rng), n(rng), 0, 0, 0, n(rng))
-                           : Pose3::fromAngleAxis(Vector3(n(rng), n(rng), n(rng)), Vector3(n(rng), n(rng), n(rng)));
+    const Pose3 p =
+        planar ? Pose3::fromRollPitchYaw(n(rng), n(rng), 0, 0, 0, n(rng))
+               : Pose3::fromAngleAxis(Vector3(n(rng), n(rng), n(rng)), Vector3(n(rng), n(rng), n(rng)));
     g.addNode(id * 3, p);
   }
   for (NodeId k = 0; k < 10; ++k) {
@@ -366,8 +380,9 @@ PoseGraph randomGraph(std::mt19937& rng, bool planar) {
     c.from = 3 * (k % 6);
     c.to = 3 * ((k * 5 + 1) % 6);
     if (c.from == c.to) c.to = 3 * ((k + 1) % 6);
-    c.measurement = relativePose(g.pose(c.from), g.pose(c.to)) *
-                    Pose3::fromRollPitchYaw(0.1 * n(rng), 0.1 * n(rng), planar ? 0 : 0.1 * n(rng), 0, 0, 0.1 * n(rng));
+    c.measurement =
+        relativePose(g.pose(c.from), g.pose(c.to)) *
+        Pose3::fromRollPitchYaw(0.1 * n(rng), 0.1 * n(rng), planar ? 0 : 0.1 * n(rng), 0, 0, 0.1 * n(rng));
     if (planar) {
       Eigen::Matrix3d a = Eigen::Matrix3d::Random();
       Eigen::Matrix3d p = a * a.transpose() + Eigen::Matrix3d::Identity();
@@ -422,7 +437,8 @@ TEST(GraphIo, RoundTripG2o3dIsBitwise) {
     EXPECT_EQ(original.node(i).pose.rotation().coeffs(), a.node(i).pose.rotation().coeffs());
   }
   for (std::size_t k = 0; k < a.numConstraints(); ++k) {
-    EXPECT_EQ(a.constraints()[k].measurement.rotation().coeffs(), b.constraints()[k].measurement.rotation().coeffs());
+    EXPECT_EQ(a.constraints()[k].measurement.rotation().coeffs(),
+              b.constraints()[k].measurement.rotation().coeffs());
     EXPECT_EQ(a.constraints()[k].measurement.translation(), b.constraints()[k].measurement.translation());
   }
   EXPECT_EQ(text, writeText(b, GraphFormat::kG2o));

@@ -115,7 +115,8 @@ TEST(GraphIoDatasets, Sphere2500TranslationFirstToroMatchesG2oConversion) {
     ASSERT_NE(it, toro_index.end()) << a.from << " -> " << a.to;
     const Constraint& b = toro.constraints()[it->second];
     worst_rotation = std::max(worst_rotation, (a.measurement.inverse() * b.measurement).angle());
-    worst_translation = std::max(worst_translation, (a.measurement.translation() - b.measurement.translation()).norm());
+    worst_translation =
+        std::max(worst_translation, (a.measurement.translation() - b.measurement.translation()).norm());
   }
   EXPECT_LT(worst_rotation, 2e-6);
   EXPECT_LT(worst_translation, 2e-5);

@@ -122,7 +122,8 @@ TEST_F(ToroOptimizeCli, MalformedFileGivesFileLineMessageAndNonZeroExit) {
                         "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 abc 1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1\n";
   const Result r = run(bad.string());
   EXPECT_EQ(r.exit_code, 1);
-  EXPECT_EQ(r.err, "toro_optimize: " + bad.string() + ":3: EDGE_SE3:QUAT field 9 (qw): 'abc' is not a number\n");
+  EXPECT_EQ(r.err,
+            "toro_optimize: " + bad.string() + ":3: EDGE_SE3:QUAT field 9 (qw): 'abc' is not a number\n");
   EXPECT_TRUE(r.out.empty()) << r.out;
 }
 

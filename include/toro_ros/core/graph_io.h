@@ -62,22 +62,22 @@ struct ReadOptions {
 struct ReadReport {
   static constexpr std::size_t kMaxListedLines = 10;
 
-  std::string source;                            // file name as given (or the stream's display name)
-  GraphFormat format = GraphFormat::kAuto;       // the format actually read
+  std::string source;                       // file name as given (or the stream's display name)
+  GraphFormat format = GraphFormat::kAuto;  // the format actually read
   GraphDimension dimension = GraphDimension::k3D;
-  std::size_t lines = 0;                         // lines read, blank and comment lines included
-  std::size_t comment_lines = 0;                 // lines starting with '#'
-  std::size_t vertices = 0;                      // VERTEX lines
-  std::size_t edges = 0;                         // EDGE lines (= constraints)
-  std::size_t fixed = 0;                         // distinct nodes named on FIX lines
-  bool has_vertices = false;                     // false: no VERTEX line, every pose needs a guess
+  std::size_t lines = 0;                            // lines read, blank and comment lines included
+  std::size_t comment_lines = 0;                    // lines starting with '#'
+  std::size_t vertices = 0;                         // VERTEX lines
+  std::size_t edges = 0;                            // EDGE lines (= constraints)
+  std::size_t fixed = 0;                            // distinct nodes named on FIX lines
+  bool has_vertices = false;                        // false: no VERTEX line, every pose needs a guess
   std::map<std::string, std::size_t> skipped_tags;  // unknown tags (e.g. EQUIV) and their counts
   // Edge endpoints without a VERTEX line; they were added with the identity pose (ascending ids,
   // after the nodes that have a VERTEX line), so only a chained initial guess makes sense for them.
   std::vector<NodeId> nodes_without_vertex;
-  std::size_t edges_without_information = 0;     // GTSAM-style EDGE3 with 6 values: identity used
-  std::size_t repaired_information = 0;          // matrices changed by repairInformation
-  std::vector<std::size_t> repaired_lines;       // their line numbers, the first kMaxListedLines
+  std::size_t edges_without_information = 0;  // GTSAM-style EDGE3 with 6 values: identity used
+  std::size_t repaired_information = 0;       // matrices changed by repairInformation
+  std::vector<std::size_t> repaired_lines;    // their line numbers, the first kMaxListedLines
 
   bool emptyGraph() const { return vertices == 0 && edges == 0; }
 };
@@ -88,11 +88,10 @@ std::string describeReport(const ReadReport& report);
 const char* formatName(GraphFormat format);
 
 // Reads a graph file.  Throws ParseError for a file that cannot be opened or a malformed line.
-PoseGraph readGraph(const std::string& path, const ReadOptions& options = {},
-                    ReadReport* report = nullptr);
+PoseGraph readGraph(const std::string& path, const ReadOptions& options = {}, ReadReport* report = nullptr);
 // Same from a stream; `display_name` is used in messages and, for kAuto, for its extension.
-PoseGraph readGraph(std::istream& in, const std::string& display_name,
-                    const ReadOptions& options = {}, ReadReport* report = nullptr);
+PoseGraph readGraph(std::istream& in, const std::string& display_name, const ReadOptions& options = {},
+                    ReadReport* report = nullptr);
 
 struct WriteOptions {
   // kAuto: by extension (.graph, .toro -> TORO; otherwise g2o).  The stream overload writes g2o.
