@@ -98,8 +98,9 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
     }
   }
   newest_odometry_ = stamp;
-  OdometrySample sample{stamp, poseFromMsg(msg.pose.pose), covarianceMatrix(msg.pose.covariance)};
-  if (keyframer_.isKeyframe(sample) || matcher_.wantsKeyframeAt(stamp, keyframes_)) addKeyframe(sample);
+  last_odometry_ = OdometrySample{stamp, poseFromMsg(msg.pose.pose), covarianceMatrix(msg.pose.covariance)};
+  if (keyframer_.isKeyframe(*last_odometry_) || matcher_.wantsKeyframeAt(stamp, keyframes_))
+    addKeyframe(*last_odometry_);
   releasePending();
 }
 
@@ -124,8 +125,23 @@ void Pipeline::addKeyframe(const OdometrySample& sample) {
   is_loop_closure_.push_back(false);
 }
 
+void Pipeline::keyframeForStamps(const LoopClosure& msg) {
+  if (msg.id_from >= 0 && msg.id_to >= 0) return;
+  if (!last_odometry_ || (!keyframes_.empty() && keyframes_.newest().stamp >= last_odometry_->stamp)) return;
+  const double tolerance = options_.matcher.stamp_tolerance_sec;
+  for (const ros::Time& s : {msg.stamp_from, msg.stamp_to}) {
+    // A loop closure about "now" (the usual case for a place recogniser) should not wait for the
+    // next odometry message: the newest odometry sample becomes the keyframe it names.
+    if (!keyframes_.nearest(s, tolerance) && std::abs((s - last_odometry_->stamp).toSec()) <= tolerance) {
+      addKeyframe(*last_odometry_);
+      return;
+    }
+  }
+}
+
 void Pipeline::handleLoopClosure(const LoopClosure& msg) {
   ++counters_.loop_closures_received;
+  keyframeForStamps(msg);
   const MatchResult r = matcher_.submit(msg, keyframes_, newest_odometry_);
   if (r.state == MatchResult::State::kMatched)
     applyLoopClosure(msg, r);
@@ -249,6 +265,7 @@ void Pipeline::clearGraph() {
   }
   optimizer_ = toro::TreeOptimizer(optimizerOptions(options_));
   keyframer_.reset();
+  last_odometry_.reset();
   keyframes_.clear();
   is_loop_closure_.clear();
   newest_odometry_ = ros::Time();

@@ -104,6 +104,7 @@ class Pipeline {
 
  private:
   void addKeyframe(const OdometrySample& sample);
+  void keyframeForStamps(const LoopClosure& msg);
   void applyLoopClosure(const LoopClosure& msg, const MatchResult& match);
   void releasePending();
   void refuse(const std::string& category, const std::string& detail);
@@ -119,6 +120,7 @@ class Pipeline {
   KeyframeIndex keyframes_;
   std::vector<bool> is_loop_closure_;  // per constraint index
   ros::Time newest_odometry_;
+  std::optional<OdometrySample> last_odometry_;  // the newest odometry message, keyframe or not
   toro::NodeId next_id_ = 0;
   bool paused_ = false;
   // Schedule state (message time, never wall time).

@@ -1,0 +1,112 @@
+// The shipped config against the options loader: every key known, every known key documented,
+// unknown keys and wrong types reported.  No master needed.
+#include <fstream>
+#include <sstream>
+
+#include <gtest/gtest.h>
+
+#include "toro_ros/node/node_options.h"
+
+using namespace toro_ros;
+
+namespace {
+
+// The config is flat "key: value" lines (comments start with '#'); enough of YAML for it.
+XmlRpc::XmlRpcValue readFlatYaml(const std::string& path) {
+  std::ifstream in(path);
+  EXPECT_TRUE(in.good()) << path;
+  XmlRpc::XmlRpcValue out;
+  out.begin();  // make it a struct even if empty
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    const auto colon = line.find(':');
+    EXPECT_NE(colon, std::string::npos) << line;
+    const std::string key = line.substr(0, colon);
+    std::string value = line.substr(colon + 1);
+    value.erase(0, value.find_first_not_of(' '));
+    char* end = nullptr;
+    const long i = std::strtol(value.c_str(), &end, 10);
+    if (*end == '\0') {
+      out[key] = static_cast<int>(i);
+      continue;
+    }
+    const double d = std::strtod(value.c_str(), &end);
+    if (*end == '\0')
+      out[key] = d;
+    else if (value == "true" || value == "false")
+      out[key] = value == "true";
+    else
+      out[key] = value;
+  }
+  return out;
+}
+
+const std::string kConfig = std::string(TORO_SOURCE_DIR) + "/config/map_corrector.yaml";
+
+}  // namespace
+
+TEST(NodeOptions, ShippedConfigHasExactlyTheKnownKeys) {
+  const XmlRpc::XmlRpcValue params = readFlatYaml(kConfig);
+  OptionsReport report;
+  loadNodeOptions(params, &report);
+  EXPECT_TRUE(report.unknown_keys.empty()) << report.unknown_keys.front();
+  EXPECT_TRUE(report.errors.empty()) << report.errors.front();
+  for (const std::string& key : knownParameterKeys())
+    EXPECT_TRUE(XmlRpc::XmlRpcValue(params).hasMember(key)) << key << " is not in " << kConfig;
+}
+
+TEST(NodeOptions, ShippedConfigValuesAreTheDefaults) {
+  OptionsReport report;
+  const NodeOptions loaded = loadNodeOptions(readFlatYaml(kConfig), &report);
+  const NodeOptions defaults;
+  EXPECT_EQ(loaded.map_frame, defaults.map_frame);
+  EXPECT_EQ(loaded.tf_rate_hz, defaults.tf_rate_hz);
+  EXPECT_EQ(loaded.pipeline.keyframer.distance_m, defaults.pipeline.keyframer.distance_m);
+  EXPECT_EQ(loaded.pipeline.keyframer.covariance_mode, defaults.pipeline.keyframer.covariance_mode);
+  EXPECT_EQ(loaded.pipeline.matcher.max_pending, defaults.pipeline.matcher.max_pending);
+  EXPECT_EQ(loaded.pipeline.loop_closure_default_stddev.rotation_rad,
+            defaults.pipeline.loop_closure_default_stddev.rotation_rad);
+  EXPECT_EQ(loaded.pipeline.optimization.full_every_keyframes, defaults.pipeline.optimization.full_every_keyframes);
+  EXPECT_EQ(loaded.markers.draw_odometry_edges, defaults.markers.draw_odometry_edges);
+  // Every value line of the report says "(default)" only when the key is missing: none here.
+  for (const std::string& line : report.values) EXPECT_EQ(line.find("(default)"), std::string::npos) << line;
+}
+
+TEST(NodeOptions, UnknownKeysAreReported) {
+  XmlRpc::XmlRpcValue params;
+  params["keyframe_distance_m"] = 1.5;
+  params["keyframe_distnce_m"] = 2.0;  // typo
+  OptionsReport report;
+  const NodeOptions o = loadNodeOptions(params, &report);
+  ASSERT_EQ(report.unknown_keys.size(), 1u);
+  EXPECT_EQ(report.unknown_keys[0], "keyframe_distnce_m");
+  EXPECT_TRUE(report.errors.empty());
+  EXPECT_EQ(o.pipeline.keyframer.distance_m, 1.5);
+}
+
+TEST(NodeOptions, IntegersAreAcceptedForDoubles) {
+  XmlRpc::XmlRpcValue params;
+  params["tf_rate_hz"] = 20;
+  OptionsReport report;
+  EXPECT_EQ(loadNodeOptions(params, &report).tf_rate_hz, 20.0);
+  EXPECT_TRUE(report.errors.empty());
+}
+
+TEST(NodeOptions, WrongTypesAndInvalidValuesAreErrorsNamingTheKey) {
+  XmlRpc::XmlRpcValue params;
+  params["queue_size"] = std::string("big");
+  params["odometry_covariance_mode"] = std::string("guess");
+  OptionsReport report;
+  loadNodeOptions(params, &report);
+  ASSERT_EQ(report.errors.size(), 2u);
+  EXPECT_NE(report.errors[0].find("queue_size"), std::string::npos);
+  EXPECT_NE(report.errors[1].find("odometry_covariance_mode"), std::string::npos);
+
+  XmlRpc::XmlRpcValue bad_range;
+  bad_range["keyframe_angle_rad"] = -1.0;
+  OptionsReport r2;
+  loadNodeOptions(bad_range, &r2);
+  ASSERT_EQ(r2.errors.size(), 1u);
+  EXPECT_NE(r2.errors[0].find("angle_rad"), std::string::npos);
+}
