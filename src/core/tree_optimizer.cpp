@@ -9,6 +9,8 @@ namespace toro {
 namespace {
 
 constexpr std::size_t kNone = ParameterTree::kNone;
+// Inverse stiffness of a node no constraint passes through yet (capped per update anyway).
+constexpr double kUnconstrained = 1e300;
 
 // TORO weighs each constraint by one scalar per part: the smallest diagonal entry of the rotational
 // and translational information (a conservative stiffness).  Units cancel in the ratios used below.
@@ -53,6 +55,8 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   for (std::size_t c = 0; c < graph_.numConstraints(); ++c) registerConstraint(c);
   rotation_weight_.assign(n, 0.0);
   translation_weight_.assign(n, 0.0);
+  inverse_rotation_weight_.assign(n, kUnconstrained);
+  inverse_translation_weight_.assign(n, kUnconstrained);
   affected_mark_.assign(graph_.numConstraints(), 0);
   topological_order_ = tree_.topologicalOrder();
   parameters_.assign(n, Pose3());
@@ -118,6 +122,8 @@ void TreeOptimizer::addToPreconditioner(std::size_t c) {
     for (std::size_t v : *branch) {
       rotation_weight_[v] += constraint_rotation_info_[c];
       translation_weight_[v] += constraint_translation_info_[c];
+      inverse_rotation_weight_[v] = 1.0 / rotation_weight_[v];
+      inverse_translation_weight_[v] = 1.0 / translation_weight_[v];
     }
   }
 }
@@ -125,6 +131,8 @@ void TreeOptimizer::addToPreconditioner(std::size_t c) {
 void TreeOptimizer::refreshStructure() {
   std::fill(rotation_weight_.begin(), rotation_weight_.end(), 0.0);
   std::fill(translation_weight_.begin(), translation_weight_.end(), 0.0);
+  std::fill(inverse_rotation_weight_.begin(), inverse_rotation_weight_.end(), kUnconstrained);
+  std::fill(inverse_translation_weight_.begin(), inverse_translation_weight_.end(), kUnconstrained);
   top_level_.assign(graph_.numConstraints(), 0);
   order_.resize(graph_.numConstraints());
   for (std::size_t c = 0; c < graph_.numConstraints(); ++c) {
@@ -186,26 +194,28 @@ namespace {
 // Fills the signed share of the correction that each path node takes: moving along the path from
 // the constraint's first end (share -u_top) over the top (share 0) to its second end (share
 // 1 - u_top), every node's share grows by its joint's weight / total weight.  A node's weight is
-// the inverse of its stiffness (the preconditioner), floored by this constraint's own information,
-// which the stiffness always includes when it is up to date.
+// the inverse of its stiffness (the preconditioner), capped by the inverse of this constraint's own
+// information, which the stiffness always includes when it is up to date.
 double computeShares(const std::vector<std::size_t>& up, const std::vector<std::size_t>& down,
-                     const std::vector<double>& stiffness, double own_information, std::vector<double>& up_share,
-                     std::vector<double>& down_share) {
+                     const std::vector<double>& inverse_stiffness, double own_information,
+                     std::vector<double>& up_share, std::vector<double>& down_share) {
   up_share.resize(up.size());
   down_share.resize(down.size());
-  double total = 0.0;
+  const double cap = 1.0 / own_information;
+  double up_total = 0.0;
   for (std::size_t i = up.size(); i-- > 0;) {
-    total += 1.0 / std::max(stiffness[up[i]], own_information);
-    up_share[i] = -total;
+    up_total += std::min(inverse_stiffness[up[i]], cap);
+    up_share[i] = up_total;
   }
   double down_total = 0.0;
   for (std::size_t i = down.size(); i-- > 0;) {
-    down_total += 1.0 / std::max(stiffness[down[i]], own_information);
+    down_total += std::min(inverse_stiffness[down[i]], cap);
     down_share[i] = down_total;
   }
-  total += down_total;
-  for (double& s : up_share) s /= total;
-  for (double& s : down_share) s /= total;
+  const double total = up_total + down_total;
+  const double scale = 1.0 / total;
+  for (double& s : up_share) s *= -scale;
+  for (double& s : down_share) s *= scale;
   return total;
 }
 
@@ -218,7 +228,7 @@ void TreeOptimizer::distributeRotation(std::size_t c, double learning_rate) {
   // Rotation that, applied on the left (in the top frame), takes b's orientation to a * Z.
   const Vector3 error = rotationVectorFromQuaternion(qa * k.measurement.rotation() * qb.conjugate());
   const double info = constraint_rotation_info_[c];
-  const double weight_sum = computeShares(up_, down_, rotation_weight_, info, up_share_, down_share_);
+  const double weight_sum = computeShares(up_, down_, inverse_rotation_weight_, info, up_share_, down_share_);
   const double fraction = stepFraction(learning_rate, info, weight_sum);
   // All partial corrections share one axis, so they commute and the two ends end up exactly
   // `fraction` of the error apart; each parameter then absorbs the increment between its parent's
@@ -244,7 +254,7 @@ void TreeOptimizer::distributeRotationNaively(std::size_t c, double learning_rat
   Vector3 error;
   for (int i = 0; i < 3; ++i) error[i] = wrapAngle(wanted[i] - current[i]);
   const double info = constraint_rotation_info_[c];
-  const double weight_sum = computeShares(up_, down_, rotation_weight_, info, up_share_, down_share_);
+  const double weight_sum = computeShares(up_, down_, inverse_rotation_weight_, info, up_share_, down_share_);
   const double fraction = stepFraction(learning_rate, info, weight_sum);
   // Each joint's own share is the difference of consecutive cumulative shares.
   const auto adjust = [&](const std::vector<std::size_t>& branch, const std::vector<double>& share,
@@ -268,7 +278,7 @@ void TreeOptimizer::distributeTranslation(std::size_t c, double learning_rate) {
   const Vector3 b = down_.empty() ? Vector3::Zero() : down_poses_[0].translation();
   const Vector3 residual = top_T_a * k.measurement.translation() - b;
   const double info = constraint_translation_info_[c];
-  const double weight_sum = computeShares(up_, down_, translation_weight_, info, up_share_, down_share_);
+  const double weight_sum = computeShares(up_, down_, inverse_translation_weight_, info, up_share_, down_share_);
   const double fraction = stepFraction(learning_rate * translation_rate_factor_, info, weight_sum);
   for (std::size_t i = 0; i < up_.size(); ++i) {
     up_poses_[i].setTranslation(up_poses_[i].translation() + (up_share_[i] * fraction) * residual);
@@ -305,6 +315,8 @@ void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
   incident_.emplace_back();
   rotation_weight_.push_back(0.0);
   translation_weight_.push_back(0.0);
+  inverse_rotation_weight_.push_back(kUnconstrained);
+  inverse_translation_weight_.push_back(kUnconstrained);
   topological_order_.push_back(v);
 }
 

@@ -104,6 +104,8 @@ class TreeOptimizer {
   std::vector<Pose3> parameters_;        // parent_T_node per dense node index (root: world_T_root)
   std::vector<double> rotation_weight_;  // preconditioner per node: sum of rotational information
   std::vector<double> translation_weight_;
+  std::vector<double> inverse_rotation_weight_;      // 1 / rotation_weight_, kept beside it
+  std::vector<double> inverse_translation_weight_;
   std::vector<std::size_t> from_index_, to_index_;  // dense endpoints per constraint
   std::vector<double> constraint_rotation_info_;     // scalar information per constraint
   std::vector<double> constraint_translation_info_;
