@@ -331,8 +331,9 @@ std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
   for (std::size_t v : reparented) {
     const std::size_t p = tree_.parent(v);
     parameters_[v] = p == kNone ? graph_.node(v).pose : relativePose(graph_.node(p).pose, graph_.node(v).pose);
-    // A leaf that was a lone root (a new keyframe being attached) changes no other path.
-    if (!(reparented.size() == 1 && tree_.children(v).empty())) tree_reshaped = true;
+    // A node attached by its very first constraint (a new keyframe) changes no other path; any
+    // other re-parenting changes the paths (top nodes, stiffness) of constraints through it.
+    if (!(reparented.size() == 1 && tree_.children(v).empty() && incident_[v].size() == 1)) tree_reshaped = true;
   }
   if (tree_reshaped) {
     topological_order_ = tree_.topologicalOrder();
