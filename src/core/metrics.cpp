@@ -1,5 +1,7 @@
 #include "toro_ros/core/metrics.h"
 
+#include "toro_ros/core/finish_residuals.h"
+
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
@@ -13,29 +15,12 @@ namespace {
 using Matrix2 = Eigen::Matrix2d;
 using Vector2 = Eigen::Vector2d;
 
-// Angle in (-pi, pi].
-double wrapAngle(double a) {
-  a = std::remainder(a, 2.0 * M_PI);
-  return a <= -M_PI ? a + 2.0 * M_PI : a;
-}
-
 double yawOf(const Pose3& p) { return p.rollPitchYaw().z(); }
 
 Matrix2 planarRotation(double theta) {
   Matrix2 r;
   r << std::cos(theta), -std::sin(theta), std::sin(theta), std::cos(theta);
   return r;
-}
-
-// The planar (x, y, theta) information of a lifted 2D constraint.  The internal yaw entries are
-// in quaternion-vector units (qz ~ theta / 2), so converting back to angle units divides the
-// theta-theta entry by 4 and the cross entries by 2 (the inverse of the readers' lifting).
-Eigen::Matrix3d planarInformation(const Matrix6& info) {
-  Eigen::Matrix3d out;
-  out << info(0, 0), info(0, 1), info(0, 5) / 2.0,  //
-      info(1, 0), info(1, 1), info(1, 5) / 2.0,     //
-      info(5, 0) / 2.0, info(5, 1) / 2.0, info(5, 5) / 4.0;
-  return out;
 }
 
 double chi2Of3D(const Pose3& xi, const Pose3& xj, const Constraint& c) {
@@ -92,6 +77,15 @@ double seSyncTerm2D(const Pose3& xi, const Pose3& xj, const Constraint& c) {
 }
 
 }  // namespace
+
+Eigen::Matrix3d planarInformation(const Matrix6& info) {
+  // Inverse of the readers' lifting (see graph_io.h): exact power-of-two scalings.
+  Eigen::Matrix3d out;
+  out << info(0, 0), info(0, 1), info(0, 5) / 2.0,  //
+      info(1, 0), info(1, 1), info(1, 5) / 2.0,     //
+      info(5, 0) / 2.0, info(5, 1) / 2.0, info(5, 5) / 4.0;
+  return out;
+}
 
 double g2oChi2(const PoseGraph& graph) {
   double sum = 0.0;

@@ -31,4 +31,9 @@ ToroError toroError(const PoseGraph& graph);
 // Per-constraint g2o chi2 (same definition as g2oChi2), e.g. to colour loop closures by residual.
 double constraintChi2(const PoseGraph& graph, std::size_t constraint_index);
 
+// The planar (x, y, theta) information of a lifted 2D constraint, in angle units: the internal
+// 6x6 at indices (0, 1, 5) with the theta-theta entry divided by 4 and the x-theta, y-theta
+// entries by 2 (the internal yaw unit is the quaternion-vector one, about half the angle).
+Eigen::Matrix3d planarInformation(const Matrix6& information);
+
 }  // namespace toro

@@ -1,0 +1,76 @@
+// The combined optimiser: TORO (tree-parameterised SGD, robust from poor starts) first, then the
+// sparse Levenberg-Marquardt finish (exact optimum).  One function, so the command-line tool and
+// the node run the same code.
+//
+// Switch-over: the TORO phase ends after toro_max_iterations, or earlier, once an iteration
+// lowers the g2o chi2 by less than switch_relative_decrease of its value (TORO's progress has
+// flattened out and the finish takes over), but never before toro_min_iterations.
+#pragma once
+
+#include <cstddef>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "toro_ros/core/pose_graph.h"
+#include "toro_ros/core/sparse_finisher.h"
+#include "toro_ros/core/tree_optimizer.h"
+
+namespace toro {
+
+enum class OptimizeMode {
+  kToro,            // TORO iterations only
+  kFinish,          // the sparse finish only (from the graph's poses or the chained guess)
+  kToroThenFinish,  // TORO, then the finish once the switch-over rule fires
+};
+const char* optimizeModeName(OptimizeMode mode);
+// Parses "toro", "finish" or "toro+finish"; false for anything else.
+bool parseOptimizeMode(const std::string& text, OptimizeMode* mode);
+
+struct OptimizeOptions {
+  OptimizeMode mode = OptimizeMode::kToroThenFinish;
+  // Start: the poses stored in the graph, or the measurements chained along TORO's tree.
+  InitialGuess initial_guess = InitialGuess::kChainOnTree;
+  TreeOptimizerOptions toro;
+  // TORO phase length.  In kToro mode the switch threshold still ends the phase early when it is
+  // positive; set it to 0 to run exactly toro_max_iterations.
+  std::size_t toro_max_iterations = 30;
+  std::size_t toro_min_iterations = 3;
+  double switch_relative_decrease = 0.05;
+  FinishOptions finish;
+
+  // Empty when valid, otherwise what is wrong (including the nested options).
+  std::string validate() const;
+};
+
+enum class OptimizePhase { kStart, kToro, kFinish };
+const char* optimizePhaseName(OptimizePhase phase);
+
+// One line of the per-iteration report, for both phases.
+struct OptimizeIteration {
+  OptimizePhase phase = OptimizePhase::kToro;
+  std::size_t iteration = 0;  // 1-based within its phase (0 for kStart)
+  double chi2 = 0.0;          // g2o chi2 (REFERENCE.md (B)) after the iteration
+  double lambda = 0.0;        // finish: damping of the step; TORO: learning rate
+  bool accepted = true;       // finish: whether the step was taken
+  double seconds = 0.0;       // wall time since optimizeGraph() started
+};
+
+struct OptimizeReport {
+  double initial_chi2 = 0.0;  // at the initial guess
+  double final_chi2 = 0.0;
+  std::size_t toro_iterations = 0;
+  std::string switch_reason;  // why the TORO phase ended (empty if it did not run)
+  double toro_seconds = 0.0;
+  FinishReport finish;        // stop == kNotRun if the finish did not run
+  double seconds = 0.0;
+  std::vector<OptimizeIteration> history;  // kStart line first
+};
+
+using OptimizeCallback = std::function<void(const OptimizeIteration&)>;
+
+// Optimises the poses of `graph` in place.  Throws std::invalid_argument for invalid options.
+OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options,
+                             const OptimizeCallback& callback = {});
+
+}  // namespace toro

@@ -1,0 +1,106 @@
+// The sparse second-order finish: Levenberg-Marquardt on the exact g2o chi2 (REFERENCE.md (B)).
+//
+// TORO gets close to the optimum from poor starts; this solver takes the last digits.  The
+// residuals and analytic Jacobians are in finish_residuals.h (3D: right perturbation on SE(3);
+// 2D graphs: the planar (x, y, theta) problem, whose cost is the 2D chi2 g2oChi2() reports).
+// The normal equations are assembled straight into the values of a sparse matrix whose pattern
+// is built once; the sparse Cholesky analyses that pattern once and factorises every iteration.
+//
+// Gauge: the graph's FIX nodes when it has any, otherwise the node with the smallest id (the
+// root of TORO's tree).  A connected component that contains no held node (e.g. a second,
+// unconnected map) gets its own smallest id held as well, so the system is never singular.
+#pragma once
+
+#include <cstddef>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "toro_ros/core/pose_graph.h"
+
+namespace toro {
+
+enum class LinearSolverType {
+  kCholmodSupernodal,  // CHOLMOD supernodal LL^T (SuiteSparse; BLAS-based dense supernodes)
+  kCholmodSimplicial,  // CHOLMOD simplicial LDL^T (SuiteSparse)
+  kSimplicialLDLT,     // Eigen's SimplicialLDLT (no external library)
+};
+
+// True if this build links CHOLMOD (kCholmodSupernodal is usable).
+bool cholmodAvailable();
+const char* linearSolverName(LinearSolverType type);
+
+struct FinishOptions {
+  // Stop after this many iterations (accepted or rejected steps).
+  std::size_t max_iterations = 100;
+  // Stop when an accepted step lowers chi2 by less than this fraction of its value.
+  double relative_decrease_tolerance = 1e-12;
+  // Stop when the largest gradient entry |J^T Omega e|_inf is below this (chi2 per metre/radian).
+  double gradient_tolerance = 1e-10;
+  // Stop when the largest entry of a step (metres, radians) is below this.
+  double step_tolerance = 1e-12;
+  // Initial damping lambda = initial_lambda_factor * (largest diagonal entry of J^T Omega J).
+  double initial_lambda_factor = 1e-8;
+  // Give up (reason kLambdaTooLarge) when lambda exceeds this multiple of the largest diagonal.
+  double max_lambda_factor = 1e10;
+  LinearSolverType linear_solver = LinearSolverType::kCholmodSupernodal;
+
+  // Empty when valid, otherwise what is wrong.
+  std::string validate() const;
+};
+
+enum class FinishStop {
+  kNotRun,
+  kRelativeDecrease,  // converged: chi2 no longer decreases noticeably
+  kGradient,          // converged: gradient ~ 0
+  kStep,              // converged: steps ~ 0
+  kMaxIterations,
+  kLambdaTooLarge,    // no step lowers chi2 any more (stalled, e.g. at the limit of precision)
+  kNoConstraints,
+};
+const char* finishStopName(FinishStop stop);
+
+struct FinishIteration {
+  std::size_t iteration = 0;  // 1-based
+  double chi2 = 0.0;          // after this iteration (unchanged if the step was rejected)
+  double lambda = 0.0;        // damping used for this iteration's step
+  double gain_ratio = 0.0;    // actual / predicted decrease
+  double step_norm = 0.0;     // largest entry of the step
+  double gradient_norm = 0.0; // largest gradient entry before the step
+  bool accepted = false;
+  double seconds = 0.0;       // wall time since optimize() started
+};
+
+struct FinishReport {
+  double initial_chi2 = 0.0;
+  double final_chi2 = 0.0;
+  std::size_t iterations = 0;
+  FinishStop stop = FinishStop::kNotRun;
+  std::size_t held_nodes = 0;            // gauge nodes (see the header comment)
+  std::size_t repaired_information = 0;  // constraints whose information was not positive definite
+  double seconds = 0.0;
+  double factorization_seconds = 0.0;    // of which: numeric factorisations and solves
+  std::vector<FinishIteration> history;
+};
+
+using FinishCallback = std::function<void(const FinishIteration&)>;
+
+class LevenbergMarquardt {
+ public:
+  // Throws std::invalid_argument if options.validate() fails or the chosen linear solver is not
+  // built in.
+  explicit LevenbergMarquardt(const FinishOptions& options = {});
+
+  // Optimises the poses of `graph` in place and reports; `callback` (if set) sees every iteration.
+  // Information matrices that are not positive definite are repaired (repairInformation) for the
+  // solve only and counted in the report; the graph's constraints are left as they are.
+  // Throws std::runtime_error if the sparse factorisation fails for a reason damping cannot cure.
+  FinishReport optimize(PoseGraph& graph, const FinishCallback& callback = {}) const;
+
+  const FinishOptions& options() const { return options_; }
+
+ private:
+  FinishOptions options_;
+};
+
+}  // namespace toro

@@ -1,0 +1,253 @@
+// Internal: the least-squares problem of the sparse finish for one model (SE(3) or planar).
+// Holds the states, the per-constraint data and the normal equations, whose sparsity pattern is
+// built once; linearize() writes J^T Omega J straight into the matrix's value array through
+// offsets precomputed per constraint, so no iteration allocates or searches.
+#pragma once
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <array>
+#include <memory>
+#include <stdexcept>
+#include <vector>
+
+#include "sparse_cholesky.h"
+#include "toro_ros/core/finish_residuals.h"
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/core/pose_graph.h"
+
+namespace toro {
+namespace detail {
+
+// The 3D problem: states are poses, residuals the g2o SE(3) error.
+struct ModelSE3 {
+  static constexpr int kDim = 6;
+  using State = Pose3;
+  using Vec = Vector6;
+  using Mat = Matrix6;
+  using Lin = Linearization3D;
+  static State stateOf(const Pose3& pose) { return pose; }
+  static Pose3 poseOf(const State& state, const Pose3& /*original*/) { return state; }
+  static Mat informationOf(const Matrix6& information) { return information; }
+  static Vec error(const State& a, const State& b, const State& z) { return errorSE3(a, b, z); }
+  static void linearize(const State& a, const State& b, const State& z, Lin* out) {
+    linearizeSE3(a, b, z, out);
+  }
+  static State retract(const State& s, const Vec& d) { return retractSE3(s, d); }
+};
+
+// The planar problem of lifted 2D graphs: states (x, y, theta), residuals the 2D g2o error.
+struct ModelSE2 {
+  static constexpr int kDim = 3;
+  using State = Vector3;
+  using Vec = Vector3;
+  using Mat = Matrix3;
+  using Lin = Linearization2D;
+  static State stateOf(const Pose3& pose) {
+    return State(pose.translation().x(), pose.translation().y(), pose.rollPitchYaw().z());
+  }
+  static Pose3 poseOf(const State& s, const Pose3& original) {
+    return Pose3::fromRollPitchYaw(s.x(), s.y(), original.translation().z(), 0.0, 0.0, s.z());
+  }
+  static Mat informationOf(const Matrix6& information) { return planarInformation(information); }
+  static Vec error(const State& a, const State& b, const State& z) { return errorSE2(a, b, z); }
+  static void linearize(const State& a, const State& b, const State& z, Lin* out) {
+    linearizeSE2(a, b, z, out);
+  }
+  static State retract(const State& s, const Vec& d) { return s + d; }
+};
+
+// Which nodes are held (gauge): the FIX nodes, plus the smallest id of every connected component
+// without one.  Indexed by dense node index.
+std::vector<bool> heldNodes(const PoseGraph& graph);
+
+// Position of entry (row, col) in the values of a compressed column-major matrix.
+int entryIndex(const SparseMatrix& m, int row, int col);
+
+template <class Model>
+class FinishProblem {
+ public:
+  static constexpr int D = Model::kDim;
+  using State = typename Model::State;
+  using Vec = typename Model::Vec;
+  using Mat = typename Model::Mat;
+
+  // Copies states and constraints; repairs information that is not positive definite (counted).
+  FinishProblem(const PoseGraph& graph, LinearSolverType solver);
+
+  std::size_t numFree() const { return static_cast<std::size_t>(b_.size()) / D; }
+  std::size_t numHeld() const { return held_count_; }
+  std::size_t repairedInformation() const { return repaired_; }
+  std::vector<State>& states() { return states_; }
+
+  double cost(const std::vector<State>& states) const {
+    double chi2 = 0.0;
+    for (const Edge& e : edges_) {
+      const Vec r = Model::error(states[e.i], states[e.j], e.z);
+      chi2 += r.dot(e.information * r);
+    }
+    return chi2;
+  }
+
+  // chi2 at states(), and the normal equations there: H = J^T Omega J (upper), b = J^T Omega e.
+  double linearize();
+  const Eigen::VectorXd& b() const { return b_; }
+  double maxDiagonal() const { return diagonal_.size() ? diagonal_.maxCoeff() : 0.0; }
+  // Solves (H + lambda I) step = -b; false if the factorisation failed.
+  bool solveStep(double lambda, Eigen::VectorXd* step);
+
+  std::vector<State> retracted(const Eigen::VectorXd& step) const {
+    std::vector<State> out = states_;
+    for (std::size_t n = 0; n < out.size(); ++n) {
+      if (block_[n] >= 0) out[n] = Model::retract(out[n], step.template segment<D>(block_[n] * D));
+    }
+    return out;
+  }
+
+  void writeBack(PoseGraph& graph) const {
+    for (std::size_t n = 0; n < states_.size(); ++n) {
+      graph.setPoseAt(n, Model::poseOf(states_[n], graph.node(n).pose));
+    }
+  }
+
+ private:
+  struct Edge {
+    std::size_t i = 0, j = 0;  // dense node indices
+    int bi = -1, bj = -1;      // state blocks, -1 when held
+    State z;
+    Mat information;
+    std::array<int, D> diag_i{}, diag_j{}, off{};
+  };
+
+  void buildPattern();
+  void addUpper(const std::array<int, D>& offsets, const Mat& block);
+  void addFull(const std::array<int, D>& offsets, const Mat& block);
+
+  std::vector<State> states_;
+  std::vector<int> block_;
+  std::size_t held_count_ = 0;
+  std::size_t repaired_ = 0;
+  std::vector<Edge> edges_;
+  SparseMatrix h_;
+  Eigen::VectorXd b_, diagonal_;
+  std::vector<int> diagonal_index_;
+  std::unique_ptr<SparseCholesky> cholesky_;
+};
+
+template <class Model>
+FinishProblem<Model>::FinishProblem(const PoseGraph& graph, LinearSolverType solver) {
+  const std::vector<bool> held = heldNodes(graph);
+  int free_blocks = 0;
+  for (std::size_t n = 0; n < graph.numNodes(); ++n) {
+    states_.push_back(Model::stateOf(graph.node(n).pose));
+    block_.push_back(held[n] ? -1 : free_blocks++);
+    held_count_ += held[n] ? 1 : 0;
+  }
+  for (const Constraint& c : graph.constraints()) {
+    Edge e;
+    e.i = graph.indexOf(c.from);
+    e.j = graph.indexOf(c.to);
+    e.bi = block_[e.i];
+    e.bj = block_[e.j];
+    e.z = Model::stateOf(c.measurement);
+    Matrix6 information = c.information;
+    // addConstraint keeps non-positive-definite matrices out, but a matrix at the edge of
+    // definiteness can still fail a factorisation; the repair is the readers' one.
+    if (Eigen::LLT<Matrix6>(information).info() != Eigen::Success && repairInformation(information)) ++repaired_;
+    e.information = Model::informationOf(information);
+    edges_.push_back(e);
+  }
+  b_.setZero(free_blocks * D);
+  buildPattern();
+  cholesky_ = makeSparseCholesky(solver);
+  cholesky_->analyzePattern(h_);
+}
+
+template <class Model>
+void FinishProblem<Model>::buildPattern() {
+  const int n = static_cast<int>(b_.size());
+  std::vector<Eigen::Triplet<double>> triplets;
+  auto addBlock = [&](int r, int c) {  // r <= c; upper triangle only on the diagonal
+    for (int k = 0; k < D; ++k) {
+      for (int a = 0; a < D && (r != c || a <= k); ++a) triplets.emplace_back(r * D + a, c * D + k, 0.0);
+    }
+  };
+  for (int blk = 0; blk < n / D; ++blk) addBlock(blk, blk);
+  for (const Edge& e : edges_) {
+    if (e.bi >= 0 && e.bj >= 0 && e.bi != e.bj) addBlock(std::min(e.bi, e.bj), std::max(e.bi, e.bj));
+  }
+  h_.resize(n, n);
+  h_.setFromTriplets(triplets.begin(), triplets.end());
+  h_.makeCompressed();
+  auto offsets = [&](int r, int c) {
+    std::array<int, D> o;
+    for (int k = 0; k < D; ++k) o[k] = entryIndex(h_, r * D, c * D + k);
+    return o;
+  };
+  for (Edge& e : edges_) {
+    if (e.bi >= 0) e.diag_i = offsets(e.bi, e.bi);
+    if (e.bj >= 0) e.diag_j = offsets(e.bj, e.bj);
+    if (e.bi >= 0 && e.bj >= 0) e.off = offsets(std::min(e.bi, e.bj), std::max(e.bi, e.bj));
+  }
+  diagonal_index_.resize(n);
+  for (int k = 0; k < n; ++k) diagonal_index_[k] = entryIndex(h_, k, k);
+  diagonal_.setZero(n);
+}
+
+template <class Model>
+void FinishProblem<Model>::addUpper(const std::array<int, D>& offsets, const Mat& block) {
+  double* values = h_.valuePtr();
+  for (int k = 0; k < D; ++k) {
+    for (int a = 0; a <= k; ++a) values[offsets[k] + a] += block(a, k);
+  }
+}
+
+template <class Model>
+void FinishProblem<Model>::addFull(const std::array<int, D>& offsets, const Mat& block) {
+  double* values = h_.valuePtr();
+  for (int k = 0; k < D; ++k) {
+    for (int a = 0; a < D; ++a) values[offsets[k] + a] += block(a, k);
+  }
+}
+
+template <class Model>
+double FinishProblem<Model>::linearize() {
+  std::fill(h_.valuePtr(), h_.valuePtr() + h_.nonZeros(), 0.0);
+  b_.setZero();
+  double chi2 = 0.0;
+  typename Model::Lin lin;
+  for (const Edge& e : edges_) {
+    Model::linearize(states_[e.i], states_[e.j], e.z, &lin);
+    const Vec weighted_error = e.information * lin.error;
+    chi2 += lin.error.dot(weighted_error);
+    const Mat w_to = e.information * lin.d_to;
+    if (e.bi >= 0) {
+      const Mat w_from = e.information * lin.d_from;
+      addUpper(e.diag_i, lin.d_from.transpose() * w_from);
+      b_.template segment<D>(e.bi * D) += lin.d_from.transpose() * weighted_error;
+      if (e.bj >= 0) {
+        const Mat h_ij = lin.d_from.transpose() * w_to;
+        addFull(e.off, e.bi < e.bj ? h_ij : Mat(h_ij.transpose()));
+      }
+    }
+    if (e.bj >= 0) {
+      addUpper(e.diag_j, lin.d_to.transpose() * w_to);
+      b_.template segment<D>(e.bj * D) += lin.d_to.transpose() * weighted_error;
+    }
+  }
+  for (int k = 0; k < diagonal_.size(); ++k) diagonal_[k] = h_.valuePtr()[diagonal_index_[k]];
+  return chi2;
+}
+
+template <class Model>
+bool FinishProblem<Model>::solveStep(double lambda, Eigen::VectorXd* step) {
+  double* values = h_.valuePtr();
+  for (int k = 0; k < diagonal_.size(); ++k) values[diagonal_index_[k]] = diagonal_[k] + lambda;
+  const bool ok = cholesky_->factorize(h_);
+  if (ok) *step = cholesky_->solve(-b_);
+  for (int k = 0; k < diagonal_.size(); ++k) values[diagonal_index_[k]] = diagonal_[k];
+  return ok && step->allFinite();
+}
+
+}  // namespace detail
+}  // namespace toro

@@ -1,0 +1,138 @@
+#include "toro_ros/core/graph_optimizer.h"
+
+#include <chrono>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include "toro_ros/core/metrics.h"
+
+namespace toro {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double secondsSince(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+// Copies the poses of `source` (same node ids) into `target`.
+void copyPoses(const PoseGraph& source, PoseGraph& target) {
+  for (const Node& n : source.nodes()) target.setPose(n.id, n.pose);
+}
+
+struct Recorder {
+  OptimizeReport* report;
+  const OptimizeCallback* callback;
+  Clock::time_point start;
+  void operator()(OptimizePhase phase, std::size_t iteration, double chi2, double lambda, bool accepted) const {
+    OptimizeIteration it{phase, iteration, chi2, lambda, accepted, secondsSince(start)};
+    report->history.push_back(it);
+    if (*callback) (*callback)(it);
+  }
+};
+
+// Runs TORO iterations on `toro` until the switch-over rule fires; returns the reason.
+std::string runToroPhase(TreeOptimizer& toro, const OptimizeOptions& options, double chi2,
+                         const Recorder& record, OptimizeReport* report) {
+  for (std::size_t k = 1; k <= options.toro_max_iterations; ++k) {
+    const IterationStats stats = toro.iterate();
+    const double next = g2oChi2(toro.graph());
+    ++report->toro_iterations;
+    record(OptimizePhase::kToro, k, next, stats.learning_rate, true);
+    const double relative_decrease = chi2 > 0.0 ? (chi2 - next) / chi2 : 0.0;
+    chi2 = next;
+    if (k >= options.toro_min_iterations && options.switch_relative_decrease > 0.0 &&
+        relative_decrease < options.switch_relative_decrease) {
+      std::ostringstream s;
+      s << "relative chi2 decrease " << relative_decrease << " < " << options.switch_relative_decrease
+        << " after " << k << " iterations";
+      return s.str();
+    }
+  }
+  return "iteration budget of " + std::to_string(options.toro_max_iterations) + " reached";
+}
+
+}  // namespace
+
+const char* optimizeModeName(OptimizeMode mode) {
+  switch (mode) {
+    case OptimizeMode::kToro: return "toro";
+    case OptimizeMode::kFinish: return "finish";
+    case OptimizeMode::kToroThenFinish: return "toro+finish";
+  }
+  return "unknown";
+}
+
+bool parseOptimizeMode(const std::string& text, OptimizeMode* mode) {
+  for (OptimizeMode m : {OptimizeMode::kToro, OptimizeMode::kFinish, OptimizeMode::kToroThenFinish}) {
+    if (text == optimizeModeName(m)) {
+      *mode = m;
+      return true;
+    }
+  }
+  return false;
+}
+
+const char* optimizePhaseName(OptimizePhase phase) {
+  switch (phase) {
+    case OptimizePhase::kStart: return "start";
+    case OptimizePhase::kToro: return "toro";
+    case OptimizePhase::kFinish: return "finish";
+  }
+  return "unknown";
+}
+
+std::string OptimizeOptions::validate() const {
+  std::string out;
+  auto add = [&out](const std::string& what) { out += (out.empty() ? "" : "; ") + what; };
+  if (mode != OptimizeMode::kFinish && toro_max_iterations == 0) add("toro_max_iterations must be at least 1");
+  if (toro_min_iterations > toro_max_iterations) add("toro_min_iterations must not exceed toro_max_iterations");
+  if (!(switch_relative_decrease >= 0.0) || !std::isfinite(switch_relative_decrease)) {
+    add("switch_relative_decrease must be finite and >= 0");
+  }
+  const std::string toro_problem = toro.validate();
+  if (!toro_problem.empty()) add("toro: " + toro_problem);
+  const std::string finish_problem = finish.validate();
+  if (!finish_problem.empty()) add("finish: " + finish_problem);
+  return out;
+}
+
+OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options, const OptimizeCallback& callback) {
+  const std::string problem = options.validate();
+  if (!problem.empty()) throw std::invalid_argument("OptimizeOptions: " + problem);
+  // Constructed first so that an unavailable linear solver is reported before any work.
+  const LevenbergMarquardt finisher(options.finish);
+
+  OptimizeReport report;
+  const Clock::time_point start = Clock::now();
+  const Recorder record{&report, &callback, start};
+
+  const bool need_tree = options.mode != OptimizeMode::kFinish || options.initial_guess == InitialGuess::kChainOnTree;
+  if (need_tree && graph.numNodes() > 0) {
+    TreeOptimizer toro(options.toro);
+    toro.setGraph(graph, options.initial_guess);
+    report.initial_chi2 = g2oChi2(toro.graph());
+    record(OptimizePhase::kStart, 0, report.initial_chi2, 0.0, true);
+    if (options.mode != OptimizeMode::kFinish) {
+      report.switch_reason = runToroPhase(toro, options, report.initial_chi2, record, &report);
+    }
+    copyPoses(toro.graph(), graph);
+    report.toro_seconds = secondsSince(start);
+  } else {
+    report.initial_chi2 = g2oChi2(graph);
+    record(OptimizePhase::kStart, 0, report.initial_chi2, 0.0, true);
+  }
+
+  if (options.mode != OptimizeMode::kToro) {
+    report.finish = finisher.optimize(graph, [&](const FinishIteration& it) {
+      record(OptimizePhase::kFinish, it.iteration, it.chi2, it.lambda, it.accepted);
+    });
+  }
+  report.final_chi2 = g2oChi2(graph);
+  report.seconds = secondsSince(start);
+  return report;
+}
+
+}  // namespace toro
