@@ -42,6 +42,12 @@ std::optional<toro::NodeId> KeyframeIndex::nearest(const ros::Time& stamp, doubl
   return best->id;
 }
 
+std::optional<double> KeyframeIndex::nearestDistance(const ros::Time& stamp, double tolerance_sec) const {
+  const auto id = nearest(stamp, tolerance_sec);
+  if (!id) return std::nullopt;
+  return std::abs((find(*id)->stamp - stamp).toSec());
+}
+
 const KeyframeRecord* KeyframeIndex::find(toro::NodeId id) const {
   auto it = std::lower_bound(records_.begin(), records_.end(), id,
                              [](const KeyframeRecord& r, toro::NodeId i) { return r.id < i; });
@@ -57,8 +63,12 @@ std::string LoopClosureMatchOptions::validate() const {
 
 bool LoopClosureMatcher::decidable(const ros::Time& stamp, const KeyframeIndex& index,
                                    const ros::Time& newest_odometry) const {
-  if (!index.empty() && index.newest().stamp >= stamp) return true;
-  return !newest_odometry.isZero() && (newest_odometry - stamp).toSec() > options_.stamp_tolerance_sec;
+  if (newest_odometry.isZero() || stamp > newest_odometry) return false;
+  // Every later keyframe has a stamp >= the newest odometry, so it is at least `ahead` away.
+  const double ahead = (newest_odometry - stamp).toSec();
+  if (ahead > options_.stamp_tolerance_sec) return true;
+  const auto distance = index.nearestDistance(stamp, options_.stamp_tolerance_sec);
+  return distance && *distance <= ahead;
 }
 
 MatchResult LoopClosureMatcher::matchNow(const LoopClosure& msg, const KeyframeIndex& index) const {
@@ -116,13 +126,19 @@ std::vector<std::pair<LoopClosure, MatchResult>> LoopClosureMatcher::release(con
 }
 
 bool LoopClosureMatcher::wantsKeyframeAt(const ros::Time& stamp, const KeyframeIndex& index) const {
-  for (const LoopClosure& msg : pending_) {
-    for (const ros::Time& s : {msg.stamp_from, msg.stamp_to}) {
-      if (s > stamp || (stamp - s).toSec() > options_.stamp_tolerance_sec) continue;
-      if (!index.nearest(s, options_.stamp_tolerance_sec)) return true;
-    }
-  }
+  for (const LoopClosure& msg : pending_)
+    for (const ros::Time& s : {msg.stamp_from, msg.stamp_to})
+      if (betterKeyframe(s, stamp, index, options_.stamp_tolerance_sec)) return true;
   return false;
+}
+
+bool betterKeyframe(const ros::Time& stamp, const ros::Time& candidate, const KeyframeIndex& index,
+                    double tolerance_sec) {
+  if (stamp > candidate) return false;
+  const double d = (candidate - stamp).toSec();
+  if (d > tolerance_sec) return false;
+  const auto existing = index.nearestDistance(stamp, tolerance_sec);
+  return !existing || d < *existing;
 }
 
 std::vector<LoopClosure> LoopClosureMatcher::clear() {

@@ -128,11 +128,10 @@ void Pipeline::addKeyframe(const OdometrySample& sample) {
 void Pipeline::keyframeForStamps(const LoopClosure& msg) {
   if (msg.id_from >= 0 && msg.id_to >= 0) return;
   if (!last_odometry_ || (!keyframes_.empty() && keyframes_.newest().stamp >= last_odometry_->stamp)) return;
-  const double tolerance = options_.matcher.stamp_tolerance_sec;
   for (const ros::Time& s : {msg.stamp_from, msg.stamp_to}) {
     // A loop closure about "now" (the usual case for a place recogniser) should not wait for the
     // next odometry message: the newest odometry sample becomes the keyframe it names.
-    if (!keyframes_.nearest(s, tolerance) && std::abs((s - last_odometry_->stamp).toSec()) <= tolerance) {
+    if (betterKeyframe(s, last_odometry_->stamp, keyframes_, options_.matcher.stamp_tolerance_sec)) {
       addKeyframe(*last_odometry_);
       return;
     }

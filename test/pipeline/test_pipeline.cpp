@@ -235,3 +235,15 @@ TEST(Pipeline, SaveThenLoadGivesTheSameGraph) {
   std::remove((path + ".stamps").c_str());
   rmdir(dir_template);
 }
+
+TEST(Pipeline, LoopClosureNamingTheNewestOdometryIsAppliedAtOnce) {
+  const DriftScenario sc = makeDriftingSquare();
+  Pipeline p(PipelineOptions{});
+  for (const auto& m : sc.odometry) p.handleOdometry(m);
+  const std::size_t before = p.keyframes().size();
+  p.handleLoopClosure(trueLoopClosure(sc, 0, sc.odometry.size() - 1));
+  EXPECT_EQ(p.status().pending_loop_closures, 0u);
+  EXPECT_EQ(p.status().counters.loop_closures_applied, 1u);
+  EXPECT_EQ(p.keyframes().newest().stamp, sc.odometry.back().header.stamp);
+  EXPECT_LE(p.keyframes().size(), before + 1);
+}

@@ -35,6 +35,8 @@ class KeyframeIndex {
 
   // Nearest keyframe in time with |stamp - keyframe| <= tolerance (ties: the older one).
   std::optional<toro::NodeId> nearest(const ros::Time& stamp, double tolerance_sec) const;
+  // |stamp - nearest keyframe| if one is within tolerance.
+  std::optional<double> nearestDistance(const ros::Time& stamp, double tolerance_sec) const;
   // The record of an id, or nullptr.
   const KeyframeRecord* find(toro::NodeId id) const;
 
@@ -67,6 +69,11 @@ struct MatchResult {
   std::string detail;  // the human-readable why
 };
 
+// True if an odometry sample at `candidate` (at or after `stamp`, within
+// tolerance) is strictly nearer to `stamp` than every existing keyframe within tolerance.
+bool betterKeyframe(const ros::Time& stamp, const ros::Time& candidate, const KeyframeIndex& index,
+                    double tolerance_sec);
+
 class LoopClosureMatcher {
  public:
   explicit LoopClosureMatcher(const LoopClosureMatchOptions& options) : options_(options) {}
@@ -79,8 +86,8 @@ class LoopClosureMatcher {
   std::vector<std::pair<LoopClosure, MatchResult>> release(const KeyframeIndex& index,
                                                            const ros::Time& newest_odometry);
 
-  // True if a pending loop closure names a stamp that an odometry message at `stamp` would be the
-  // first chance to cover (no keyframe near it yet): the pipeline then makes a keyframe there.
+  // True if a pending loop closure names a stamp for which an odometry message at `stamp` would be
+  // a better keyframe than any existing one (see betterKeyframe): the pipeline then makes one there.
   bool wantsKeyframeAt(const ros::Time& stamp, const KeyframeIndex& index) const;
 
   std::size_t pending() const { return pending_.size(); }
@@ -88,8 +95,9 @@ class LoopClosureMatcher {
   std::vector<LoopClosure> clear();
 
  private:
-  // A stamp is decidable when a keyframe at or after it exists (no later keyframe can be nearer) or
-  // odometry has passed it by more than the tolerance (no keyframe can come within tolerance).
+  // A stamp is decidable once odometry has reached it and no later keyframe (stamped at or after
+  // the newest odometry) could be nearer than the nearest existing one, or could be within
+  // tolerance at all.
   bool decidable(const ros::Time& stamp, const KeyframeIndex& index, const ros::Time& newest_odometry) const;
   MatchResult matchNow(const LoopClosure& msg, const KeyframeIndex& index) const;
 

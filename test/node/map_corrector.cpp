@@ -1,0 +1,348 @@
+// rostest client for map_corrector_node under simulated time.  It publishes /clock itself, the
+// drifting square of test/pipeline/drift_scenario.h and loop closures, and checks what the node
+// publishes and answers.  The tests run in declaration order and share the node's state.
+#include <atomic>
+#include <condition_variable>
+#include <fstream>
+#include <functional>
+#include <mutex>
+#include <sstream>
+#include <thread>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+#include <nav_msgs/Path.h>
+#include <ros/ros.h>
+#include <rosgraph_msgs/Clock.h>
+#include <std_srvs/Trigger.h>
+#include <tf2_msgs/TFMessage.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include "../pipeline/drift_scenario.h"
+#include "toro_ros/GetStatus.h"
+#include "toro_ros/GraphFile.h"
+#include "toro_ros/Optimize.h"
+#include "toro_ros/core/graph_io.h"
+#include "toro_ros/pipeline/persistence.h"
+#include "toro_ros/pipeline/pipeline.h"
+
+using namespace toro_ros;
+
+namespace {
+
+constexpr double kTimeoutSec = 20.0;
+
+// Latest messages seen by the subscriptions, with a condition variable to wait on.
+struct Observed {
+  std::mutex mutex;  // guards everything below
+  std::condition_variable cv;
+  std::optional<geometry_msgs::TransformStamped> map_T_odom;
+  std::optional<nav_msgs::Path> path;
+  std::optional<visualization_msgs::MarkerArray> markers;
+  bool saw_delete_all = false;
+};
+
+class Client {
+ public:
+  Client() {
+    clock_pub_ = nh_.advertise<rosgraph_msgs::Clock>("/clock", 10);
+    odom_pub_ = nh_.advertise<nav_msgs::Odometry>("odom", 1000);
+    loop_pub_ = nh_.advertise<LoopClosure>("loop_closure", 100);
+    tf_sub_ = nh_.subscribe("/tf", 100, &Client::onTf, this);
+    path_sub_ = nh_.subscribe("/map_corrector/path", 10, &Client::onPath, this);
+    markers_sub_ = nh_.subscribe("/map_corrector/graph_markers", 10, &Client::onMarkers, this);
+    // Simulated time advances 1:1 with wall time unless odometry pushes it ahead.
+    clock_thread_ = std::thread([this] {
+      while (!stop_) {
+        const double now = std::max(clock_sec_.load(), last_published_ + 0.005);
+        rosgraph_msgs::Clock c;
+        c.clock = ros::Time(now);
+        clock_pub_.publish(c);
+        last_published_ = now;
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      }
+    });
+  }
+  ~Client() {
+    stop_ = true;
+    clock_thread_.join();
+  }
+
+  void setClock(const ros::Time& t) {
+    if (t.toSec() > clock_sec_) clock_sec_ = t.toSec();
+  }
+  double clock() const { return last_published_; }
+
+  // Polls `pred` (cheap, or a service call) until true or the timeout.
+  static bool waitFor(const std::function<bool()>& pred, double timeout_sec = kTimeoutSec) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_sec);
+    while (std::chrono::steady_clock::now() < end) {
+      if (pred()) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    return pred();
+  }
+  // Waits on the subscriptions' condition variable.
+  bool waitObserved(const std::function<bool(const Observed&)>& pred, double timeout_sec = kTimeoutSec) {
+    std::unique_lock<std::mutex> lock(observed.mutex);
+    return observed.cv.wait_for(lock, std::chrono::duration<double>(timeout_sec), [&] { return pred(observed); });
+  }
+
+  bool connect() {
+    return waitFor([&] {
+      return odom_pub_.getNumSubscribers() > 0 && loop_pub_.getNumSubscribers() > 0 &&
+             path_sub_.getNumPublishers() > 0 && markers_sub_.getNumPublishers() > 0;
+    }) && ros::service::waitForService("/map_corrector/get_status", ros::Duration(kTimeoutSec));
+  }
+
+  void publishOdometry(const nav_msgs::Odometry& m) {
+    setClock(m.header.stamp);
+    odom_pub_.publish(m);
+    // Pacing, not synchronisation: keeps the burst within the node's subscriber queue.
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  void publishLoopClosure(const LoopClosure& m) { loop_pub_.publish(m); }
+
+  GetStatus::Response status() {
+    GetStatus srv;
+    EXPECT_TRUE(ros::service::call("/map_corrector/get_status", srv));
+    return srv.response;
+  }
+  bool trigger(const std::string& name) {
+    std_srvs::Trigger srv;
+    return ros::service::call("/map_corrector/" + name, srv) && srv.response.success;
+  }
+  GraphFile::Response graphFile(const std::string& name, const std::string& path) {
+    GraphFile srv;
+    srv.request.path = path;
+    EXPECT_TRUE(ros::service::call("/map_corrector/" + name, srv));
+    return srv.response;
+  }
+
+  Observed observed;
+
+ private:
+  void onTf(const tf2_msgs::TFMessage::ConstPtr& msg) {
+    for (const auto& t : msg->transforms) {
+      if (t.header.frame_id != "map" || t.child_frame_id != "odom") continue;
+      std::lock_guard<std::mutex> lock(observed.mutex);
+      observed.map_T_odom = t;
+      observed.cv.notify_all();
+    }
+  }
+  void onPath(const nav_msgs::Path::ConstPtr& msg) {
+    std::lock_guard<std::mutex> lock(observed.mutex);
+    observed.path = *msg;
+    observed.cv.notify_all();
+  }
+  void onMarkers(const visualization_msgs::MarkerArray::ConstPtr& msg) {
+    std::lock_guard<std::mutex> lock(observed.mutex);
+    observed.markers = *msg;
+    if (!msg->markers.empty() && msg->markers[0].action == visualization_msgs::Marker::DELETEALL)
+      observed.saw_delete_all = true;
+    observed.cv.notify_all();
+  }
+
+  ros::NodeHandle nh_;
+  ros::Publisher clock_pub_, odom_pub_, loop_pub_;
+  ros::Subscriber tf_sub_, path_sub_, markers_sub_;
+  std::atomic<double> clock_sec_{99.0};
+  std::atomic<double> last_published_{99.0};
+  std::atomic<bool> stop_{false};
+  std::thread clock_thread_;
+};
+
+Client* client = nullptr;
+const toro_ros::testing::DriftScenario scenario = toro_ros::testing::makeDriftingSquare();
+std::string temp_dir;
+
+toro::Pose3 poseOf(const geometry_msgs::Transform& t) {
+  return toro::Pose3(toro::Quaternion(t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z),
+                     toro::Vector3(t.translation.x, t.translation.y, t.translation.z));
+}
+
+double newestError(const geometry_msgs::Transform& map_T_odom) {
+  const toro::Pose3 odom_T_base = poseFromMsg(scenario.odometry.back().pose.pose);
+  return ((poseOf(map_T_odom) * odom_T_base).translation() - scenario.truth.back().translation()).norm();
+}
+
+
+std::uint64_t refusedCount(const GetStatus::Response& s, const std::string& reason) {
+  for (std::size_t i = 0; i < s.refused_reasons.size(); ++i)
+    if (s.refused_reasons[i] == reason) return s.refused_counts[i];
+  return 0;
+}
+
+}  // namespace
+
+TEST(MapCorrector, KeyframesFromOdometryMatchThePipeline) {
+  ASSERT_TRUE(client->connect());
+  for (const auto& m : scenario.odometry) client->publishOdometry(m);
+  const std::size_t n = scenario.odometry.size();
+  ASSERT_TRUE(Client::waitFor([&] { return client->status().odometry_messages == n; }));
+  // The node runs config/map_corrector.yaml, whose values are the defaults (test_node_options).
+  Pipeline expected(PipelineOptions{});
+  for (const auto& m : scenario.odometry) expected.handleOdometry(m);
+  const GetStatus::Response s = client->status();
+  EXPECT_EQ(s.keyframes, expected.keyframes().size());
+  EXPECT_EQ(s.constraints, expected.keyframes().size() - 1);
+  EXPECT_GT(s.keyframes, 20u);
+  EXPECT_EQ(s.queue_dropped, 0u);
+}
+
+TEST(MapCorrector, LoopClosureCorrectsMapToOdomOnTf) {
+  // Before the loop closure map->odom is the identity, and the newest pose carries the full drift.
+  ASSERT_TRUE(client->waitObserved([](const Observed& o) { return o.map_T_odom.has_value(); }));
+  double raw_error = 0;
+  {
+    std::lock_guard<std::mutex> lock(client->observed.mutex);
+    raw_error = newestError(client->observed.map_T_odom->transform);
+    // Simulated time: stamped from /clock (about 100..200 s), not wall time, and ahead of it.
+    const double stamp = client->observed.map_T_odom->header.stamp.toSec();
+    EXPECT_GT(stamp, 99.0);
+    EXPECT_LT(stamp, client->clock() + 0.2);
+  }
+  ASSERT_GT(raw_error, 1.0);
+  client->publishLoopClosure(toro_ros::testing::trueLoopClosure(scenario, 0, scenario.odometry.size() - 1));
+  ASSERT_TRUE(Client::waitFor([&] { return client->status().loop_closures_applied == 1; }));
+  double corrected = raw_error;
+  EXPECT_TRUE(client->waitObserved([&](const Observed& o) {
+    corrected = newestError(o.map_T_odom->transform);
+    return corrected < 0.1 * raw_error;
+  })) << "raw " << raw_error << " corrected " << corrected;
+}
+
+TEST(MapCorrector, PathAndMarkersShowTheCorrectedGraph) {
+  const std::size_t keyframes = client->status().keyframes;
+  EXPECT_TRUE(client->waitObserved([&](const Observed& o) {
+    if (!o.path || o.path->poses.size() != keyframes || !o.markers) return false;
+    for (const auto& m : o.markers->markers)
+      if (m.ns == "loop_closures" && m.points.size() == 2) return true;
+    return false;
+  }));
+  std::lock_guard<std::mutex> lock(client->observed.mutex);
+  ASSERT_TRUE(client->observed.path.has_value());
+  EXPECT_EQ(client->observed.path->header.frame_id, "map");
+  const auto& last = client->observed.path->poses.back().pose.position;
+  const toro::Vector3 truth = scenario.truth.back().translation();
+  EXPECT_LT(std::hypot(last.x - truth.x(), last.y - truth.y()), 0.3);
+  for (const auto& m : client->observed.markers->markers) {
+    EXPECT_EQ(m.header.frame_id, "map");
+    EXPECT_EQ(m.id, 0);
+    if (m.ns == "keyframes") EXPECT_EQ(m.points.size(), keyframes);
+    if (m.ns == "odometry_edges") EXPECT_EQ(m.points.size(), 2 * (keyframes - 1));
+  }
+}
+
+TEST(MapCorrector, OptimizePauseResumeStatus) {
+  Optimize srv;
+  srv.request.iterations = 10;
+  srv.request.mode = "full";
+  ASSERT_TRUE(ros::service::call("/map_corrector/optimize", srv));
+  EXPECT_TRUE(srv.response.success) << srv.response.message;
+  EXPECT_LE(srv.response.chi2_after, srv.response.chi2_before * (1 + 1e-9));
+  EXPECT_GE(srv.response.time_sec, 0.0);
+  EXPECT_NEAR(client->status().last_chi2, srv.response.chi2_after, 1e-9 * (1 + srv.response.chi2_after));
+  srv.request.mode = "nonsense";
+  ASSERT_TRUE(ros::service::call("/map_corrector/optimize", srv));
+  EXPECT_FALSE(srv.response.success);
+  EXPECT_NE(srv.response.message.find("nonsense"), std::string::npos);
+
+  ASSERT_TRUE(client->trigger("pause"));
+  EXPECT_TRUE(client->status().paused);
+  ASSERT_TRUE(client->trigger("resume"));
+  EXPECT_FALSE(client->status().paused);
+}
+
+TEST(MapCorrector, SaveResetLoadGivesTheSameGraph) {
+  const std::string first = temp_dir + "/first.g2o", second = temp_dir + "/second.g2o";
+  const GetStatus::Response before = client->status();
+  const GraphFile::Response saved = client->graphFile("save_graph", first);
+  ASSERT_TRUE(saved.success) << saved.message;
+
+  ASSERT_TRUE(client->trigger("reset"));
+  EXPECT_EQ(client->status().keyframes, 0u);
+  EXPECT_TRUE(client->waitObserved([](const Observed& o) { return o.saw_delete_all; }));
+
+  EXPECT_FALSE(client->graphFile("load_graph", temp_dir + "/missing.g2o").success);
+  const GraphFile::Response loaded = client->graphFile("load_graph", first);
+  ASSERT_TRUE(loaded.success) << loaded.message;
+  const GetStatus::Response after = client->status();
+  EXPECT_EQ(after.keyframes, before.keyframes);
+  EXPECT_EQ(after.constraints, before.constraints);
+  ASSERT_TRUE(client->graphFile("save_graph", second).success);
+  // Same graph: same ids, poses and constraints (to rounding: a read re-normalises quaternions).
+  const toro::PoseGraph a = toro::readGraph(first), b = toro::readGraph(second);
+  ASSERT_EQ(a.numNodes(), b.numNodes());
+  ASSERT_EQ(a.numConstraints(), b.numConstraints());
+  for (std::size_t i = 0; i < a.numNodes(); ++i) {
+    EXPECT_EQ(a.node(i).id, b.node(i).id);
+    EXPECT_LT((a.node(i).pose.translation() - b.node(i).pose.translation()).norm(), 1e-12);
+    EXPECT_LT(toro::relativePose(a.node(i).pose, b.node(i).pose).angle(), 1e-12);
+  }
+  for (std::size_t c = 0; c < a.numConstraints(); ++c) {
+    EXPECT_EQ(a.constraints()[c].from, b.constraints()[c].from);
+    EXPECT_EQ(a.constraints()[c].to, b.constraints()[c].to);
+    EXPECT_LT((a.constraints()[c].information - b.constraints()[c].information).cwiseAbs().maxCoeff(), 1e-9);
+  }
+  const Sidecar sa = readSidecar(sidecarPath(first)), sb = readSidecar(sidecarPath(second));
+  ASSERT_EQ(sa.keyframes.size(), sb.keyframes.size());
+  for (std::size_t i = 0; i < sa.keyframes.size(); ++i) EXPECT_EQ(sa.keyframes[i].stamp, sb.keyframes[i].stamp);
+  EXPECT_EQ(sa.loop_closures, sb.loop_closures);
+}
+
+TEST(MapCorrector, UnknownStampRefusedFutureStampAppliedWhenOdometryArrives) {
+  const GetStatus::Response before = client->status();
+  LoopClosure unknown = toro_ros::testing::trueLoopClosure(scenario, 0, 10);
+  unknown.stamp_from = ros::Time(20.0);
+  client->publishLoopClosure(unknown);
+  ASSERT_TRUE(Client::waitFor([&] { return client->status().loop_closures_refused == before.loop_closures_refused + 1; }));
+  EXPECT_EQ(refusedCount(client->status(), "loop closure: no keyframe within tolerance"),
+            refusedCount(before, "loop closure: no keyframe within tolerance") + 1);
+
+  // Drive on from the end of the scenario (the loaded graph ends there) for 3 more seconds.
+  const nav_msgs::Odometry& end = scenario.odometry.back();
+  const toro::Pose3 end_pose = poseFromMsg(end.pose.pose);
+  std::vector<nav_msgs::Odometry> more;
+  for (int i = 1; i <= 30; ++i)
+    more.push_back(toro_ros::testing::odometryMsg(end.header.stamp + ros::Duration(0.1 * i),
+                                        end_pose * toro::Pose3::fromRollPitchYaw(0.1 * i, 0, 0, 0, 0, 0)));
+  LoopClosure future;
+  future.id_from = future.id_to = -1;
+  future.stamp_from = scenario.odometry.front().header.stamp;
+  future.stamp_to = more[19].header.stamp;  // 2 s after the newest odometry
+  future.from_T_to = poseToMsg(toro::relativePose(scenario.truth.front(), scenario.truth.back()) *
+                               toro::Pose3::fromRollPitchYaw(2.0, 0, 0, 0, 0, 0));
+  client->publishLoopClosure(future);
+  ASSERT_TRUE(Client::waitFor([&] { return client->status().loop_closures_pending == 1; }));
+  EXPECT_EQ(client->status().loop_closures_applied, before.loop_closures_applied);
+  for (const auto& m : more) client->publishOdometry(m);
+  EXPECT_TRUE(Client::waitFor([&] {
+    const auto s = client->status();
+    return s.loop_closures_pending == 0 && s.loop_closures_applied == before.loop_closures_applied + 1;
+  }));
+}
+
+TEST(MapCorrector, TimeJumpBackResetsTheGraph) {
+  const GetStatus::Response before = client->status();
+  client->publishOdometry(toro_ros::testing::odometryMsg(ros::Time(30.0), toro::Pose3()));
+  EXPECT_TRUE(Client::waitFor([&] { return client->status().time_jump_resets == before.time_jump_resets + 1; }));
+  EXPECT_EQ(client->status().keyframes, 1u);
+}
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, "map_corrector_test_client");
+  ros::NodeHandle nh;
+  ros::AsyncSpinner spinner(2);
+  spinner.start();
+  char dir[] = "/tmp/toro_node_test_XXXXXX";
+  if (mkdtemp(dir) == nullptr) return 1;
+  temp_dir = dir;
+  Client c;
+  client = &c;
+  const int result = RUN_ALL_TESTS();
+  client = nullptr;
+  spinner.stop();
+  return result;
+}
