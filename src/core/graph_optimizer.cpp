@@ -26,8 +26,9 @@ struct Recorder {
   OptimizeReport* report;
   const OptimizeCallback* callback;
   Clock::time_point start;
-  void operator()(OptimizePhase phase, std::size_t iteration, double chi2, double lambda, bool accepted) const {
-    OptimizeIteration it{phase, iteration, chi2, lambda, accepted, secondsSince(start)};
+  void operator()(OptimizePhase phase, std::size_t iteration, double chi2, double lambda, bool accepted,
+                  const PoseGraph* estimate) const {
+    OptimizeIteration it{phase, iteration, chi2, lambda, accepted, secondsSince(start), estimate};
     report->history.push_back(it);
     if (*callback) (*callback)(it);
   }
@@ -40,7 +41,7 @@ std::string runToroPhase(TreeOptimizer& toro, const OptimizeOptions& options, do
     const IterationStats stats = toro.iterate();
     const double next = g2oChi2(toro.graph());
     ++report->toro_iterations;
-    record(OptimizePhase::kToro, k, next, stats.learning_rate, true);
+    record(OptimizePhase::kToro, k, next, stats.learning_rate, true, &toro.graph());
     const double relative_decrease = chi2 > 0.0 ? (chi2 - next) / chi2 : 0.0;
     chi2 = next;
     if (k >= options.toro_min_iterations && options.switch_relative_decrease > 0.0 &&
@@ -87,7 +88,6 @@ const char* optimizePhaseName(OptimizePhase phase) {
 std::string OptimizeOptions::validate() const {
   std::string out;
   auto add = [&out](const std::string& what) { out += (out.empty() ? "" : "; ") + what; };
-  if (mode != OptimizeMode::kFinish && toro_max_iterations == 0) add("toro_max_iterations must be at least 1");
   if (toro_min_iterations > toro_max_iterations) add("toro_min_iterations must not exceed toro_max_iterations");
   if (!(switch_relative_decrease >= 0.0) || !std::isfinite(switch_relative_decrease)) {
     add("switch_relative_decrease must be finite and >= 0");
@@ -114,7 +114,7 @@ OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options, c
     TreeOptimizer toro(options.toro);
     toro.setGraph(graph, options.initial_guess);
     report.initial_chi2 = g2oChi2(toro.graph());
-    record(OptimizePhase::kStart, 0, report.initial_chi2, 0.0, true);
+    record(OptimizePhase::kStart, 0, report.initial_chi2, 0.0, true, &toro.graph());
     if (options.mode != OptimizeMode::kFinish) {
       report.switch_reason = runToroPhase(toro, options, report.initial_chi2, record, &report);
     }
@@ -122,12 +122,12 @@ OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options, c
     report.toro_seconds = secondsSince(start);
   } else {
     report.initial_chi2 = g2oChi2(graph);
-    record(OptimizePhase::kStart, 0, report.initial_chi2, 0.0, true);
+    record(OptimizePhase::kStart, 0, report.initial_chi2, 0.0, true, &graph);
   }
 
   if (options.mode != OptimizeMode::kToro) {
     report.finish = finisher.optimize(graph, [&](const FinishIteration& it) {
-      record(OptimizePhase::kFinish, it.iteration, it.chi2, it.lambda, it.accepted);
+      record(OptimizePhase::kFinish, it.iteration, it.chi2, it.lambda, it.accepted, nullptr);
     });
   }
   report.final_chi2 = g2oChi2(graph);

@@ -1,16 +1,17 @@
 // toro_optimize: optimise a pose-graph file (g2o or TORO, 2D or 3D) with TORO 3D and report the
 // error measures of ../shared/datasets/REFERENCE.md before, during and after.
 //
-// Structure: parseArguments() fills CliOptions; run() reads the graph, sets up the optimiser and
-// calls runPhase() once per optimisation phase (today the tree phase; a later phase, e.g. a
-// second-order finish, is one more Phase and one more call), then prints the summary and writes
-// the output.  Every failure is an exception caught in run(): one line on stderr, non-zero exit.
+// Structure: parseArguments() fills CliOptions; optimise() reads the graph and runs
+// toro::optimizeGraph() (the core's TORO-then-finish driver, the same code the node runs), whose
+// per-iteration callback prints one line per iteration of either phase; then it prints the
+// summary and writes the output.  Every failure is an exception caught in run(): one line on
+// stderr, non-zero exit.
+#include <algorithm>
 #include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <functional>
 #include <iostream>
 #include <stdexcept>
 #include <string>
@@ -19,6 +20,7 @@
 #include <unistd.h>
 
 #include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/tree_optimizer.h"
 
@@ -30,11 +32,23 @@ constexpr int kExitBadArguments = 2;
 
 constexpr const char* kUsage =
     "usage: toro_optimize [options] INPUT\n"
-    "Optimises a pose graph with TORO 3D (tree parameterisation + stochastic gradient descent).\n"
+    "Optimises a pose graph with TORO 3D (tree parameterisation + stochastic gradient descent),\n"
+    "then by default with a sparse Levenberg-Marquardt finish on the g2o chi2.\n"
     "INPUT: g2o (VERTEX_SE3:QUAT/EDGE_SE3:QUAT, VERTEX_SE2/EDGE_SE2) or TORO (VERTEX3/EDGE3,\n"
     "VERTEX2/EDGE2); format by extension (.g2o, .graph), otherwise by the first data line.\n"
     "options:\n"
-    "  -i N                      iterations (default 100; 0 only measures / converts)\n"
+    "  -i N                      TORO iterations at most (default 100); in --mode toro exactly N\n"
+    "                            (0 there only measures / converts)\n"
+    "  --mode toro|finish|toro+finish\n"
+    "                            TORO only, the finish only (from the initial guess), or TORO until\n"
+    "                            the switch-over rule fires and then the finish (default toro+finish)\n"
+    "  --switch-decrease R       end the TORO phase once an iteration lowers the g2o chi2 by less\n"
+    "                            than the fraction R (default 0.2; 0: always run -i iterations)\n"
+    "  --finish-iterations N     finish iterations at most (default 100)\n"
+    "  --finish-tolerance R      stop the finish when a step lowers chi2 by less than the fraction R\n"
+    "                            (default 1e-7)\n"
+    "  --linear-solver cholmod-supernodal|cholmod-simplicial|eigen-ldlt\n"
+    "                            sparse Cholesky of the finish (default cholmod-supernodal)\n"
     "  -o OUTPUT                 write the result; format by extension (.graph/.toro: TORO, else g2o)\n"
     "  --initial-guess chain|file  chain the measurements along the tree (default) or keep the\n"
     "                            file's poses (files without VERTEX lines always chain)\n"
@@ -46,7 +60,8 @@ constexpr const char* kUsage =
     "  -q                        quiet: only the final summary (no per-iteration metrics)\n"
     "  --help                    this text\n"
     "Per-iteration lines: phase, iteration, optimisation seconds so far (metric time excluded),\n"
-    "g2o chi2, SE-Sync objective, largest rotational (rad) and translational residual.\n";
+    "g2o chi2, SE-Sync objective, largest rotational (rad) and translational residual; finish\n"
+    "lines give the g2o chi2 and the damping lambda (SE-Sync and residuals only at the end).\n";
 
 class UsageError : public std::runtime_error {
  public:
@@ -57,6 +72,11 @@ struct CliOptions {
   std::string input;
   std::string output;
   std::size_t iterations = 100;
+  toro::OptimizeMode mode = toro::OptimizeMode::kToroThenFinish;
+  double switch_decrease = toro::OptimizeOptions{}.switch_relative_decrease;
+  std::size_t finish_iterations = toro::FinishOptions{}.max_iterations;
+  double finish_tolerance = toro::FinishOptions{}.relative_decrease_tolerance;
+  toro::LinearSolverType linear_solver = toro::FinishOptions{}.linear_solver;
   bool chain_guess = true;
   double gamma = toro::TreeOptimizerOptions{}.gamma;
   toro::ToroInformationOrder toro_order = toro::ToroInformationOrder::kTranslationFirst;
@@ -82,6 +102,24 @@ double parsePositive(const std::string& flag, const std::string& text) {
   return value;
 }
 
+double parseNonNegative(const std::string& flag, const std::string& text) {
+  double value = 0.0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || end != text.data() + text.size() || !std::isfinite(value) || value < 0.0) {
+    throw UsageError(flag + " needs a non-negative number, got '" + text + "'");
+  }
+  return value;
+}
+
+toro::LinearSolverType parseLinearSolver(const std::string& text) {
+  for (auto type : {toro::LinearSolverType::kCholmodSupernodal, toro::LinearSolverType::kCholmodSimplicial,
+                    toro::LinearSolverType::kSimplicialLDLT}) {
+    if (text == toro::linearSolverName(type)) return type;
+  }
+  throw UsageError("--linear-solver must be cholmod-supernodal, cholmod-simplicial or eigen-ldlt, got '" +
+                   text + "'");
+}
+
 CliOptions parseArguments(const std::vector<std::string>& args) {
   CliOptions o;
   for (std::size_t k = 0; k < args.size(); ++k) {
@@ -98,6 +136,19 @@ CliOptions parseArguments(const std::vector<std::string>& args) {
       o.iterations = parseCount(a, value());
     } else if (a == "-o") {
       o.output = value();
+    } else if (a == "--mode") {
+      const std::string& v = value();
+      if (!toro::parseOptimizeMode(v, &o.mode)) {
+        throw UsageError("--mode must be toro, finish or toro+finish, got '" + v + "'");
+      }
+    } else if (a == "--switch-decrease") {
+      o.switch_decrease = parseNonNegative(a, value());
+    } else if (a == "--finish-iterations") {
+      o.finish_iterations = parseCount(a, value());
+    } else if (a == "--finish-tolerance") {
+      o.finish_tolerance = parseNonNegative(a, value());
+    } else if (a == "--linear-solver") {
+      o.linear_solver = parseLinearSolver(value());
     } else if (a == "--gamma") {
       o.gamma = parsePositive(a, value());
     } else if (a == "--initial-guess") {
@@ -172,26 +223,32 @@ void printLine(const char* phase, std::size_t iteration, double seconds, const M
   std::fflush(stdout);
 }
 
-// One optimisation phase: `step` runs one iteration; `current` gives the estimate to measure.
-struct Phase {
-  const char* name;
-  std::size_t iterations;
-  std::function<void()> step;
-  std::function<const toro::PoseGraph&()> current;
-};
+// The finish's state lives inside the solver, so its lines carry chi2 and the damping only.
+void printFinishLine(const toro::OptimizeIteration& it, double seconds) {
+  std::printf("%-6s %6zu %10.6f %14.8g %14s %13s %13s  lambda %.3g%s\n", "finish", it.iteration, seconds, it.chi2,
+              "-", "-", "-", it.lambda, it.accepted ? "" : " (step rejected)");
+  std::fflush(stdout);
+}
 
-void runPhase(const Phase& phase, bool report_each, RunLog& log) {
-  for (std::size_t k = 1; k <= phase.iterations; ++k) {
-    const Clock::time_point start = Clock::now();
-    phase.step();
-    log.optimise_seconds += secondsSince(start);
-    ++log.iterations;
-    if (!report_each) continue;
-    const Clock::time_point measure_start = Clock::now();
-    const Measures m = measure(phase.current());
-    log.measure_seconds += secondsSince(measure_start);
-    printLine(phase.name, log.iterations, log.optimise_seconds, m);
+toro::OptimizeOptions optimizeOptions(const CliOptions& o) {
+  toro::OptimizeOptions options;
+  options.mode = o.mode;
+  options.initial_guess = o.chain_guess ? toro::InitialGuess::kChainOnTree : toro::InitialGuess::kFromGraph;
+  options.toro.gamma = o.gamma;
+  options.toro_max_iterations = o.iterations;
+  options.toro_min_iterations = std::min(options.toro_min_iterations, o.iterations);
+  // TORO alone runs exactly -i iterations, as it always did.
+  options.switch_relative_decrease = o.mode == toro::OptimizeMode::kToro ? 0.0 : o.switch_decrease;
+  options.finish.max_iterations = o.finish_iterations;
+  options.finish.relative_decrease_tolerance = o.finish_tolerance;
+  options.finish.linear_solver = o.linear_solver;
+  const std::string invalid = options.validate();
+  if (!invalid.empty()) throw UsageError(invalid);
+  if (o.mode != toro::OptimizeMode::kToro && o.linear_solver != toro::LinearSolverType::kSimplicialLDLT &&
+      !toro::cholmodAvailable()) {
+    throw UsageError(std::string("--linear-solver ") + toro::linearSolverName(o.linear_solver) + " is not built in");
   }
+  return options;
 }
 
 // ---- the run ---------------------------------------------------------------------------------
@@ -204,9 +261,19 @@ void printMeasures(const char* label, const Measures& m) {
 }
 
 void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measures& before,
-                  const Measures& after, const RunLog& log) {
+                  const Measures& after, const RunLog& log, const toro::OptimizeReport& result) {
   std::printf("summary: %s, %zu nodes, %zu constraints, %zu iterations, initial guess %s\n", o.input.c_str(),
               graph.numNodes(), graph.numConstraints(), log.iterations, o.chain_guess ? "chain" : "file");
+  std::printf("  mode    %s: %zu tree iterations", toro::optimizeModeName(o.mode), result.toro_iterations);
+  if (o.mode == toro::OptimizeMode::kToroThenFinish) std::printf(" (switch: %s)", result.switch_reason.c_str());
+  if (o.mode != toro::OptimizeMode::kToro) {
+    std::printf(", %zu finish iterations (stop: %s, linear solver %s)", result.finish.iterations,
+                toro::finishStopName(result.finish.stop), toro::linearSolverName(o.linear_solver));
+    if (result.finish.repaired_information > 0) {
+      std::printf(", warning: %zu information matrices repaired", result.finish.repaired_information);
+    }
+  }
+  std::printf("\n");
   printMeasures("before", before);
   printMeasures("after", after);
   const double per_iteration = log.iterations ? log.optimise_seconds / double(log.iterations) : 0.0;
@@ -240,30 +307,38 @@ int optimise(CliOptions o) {
     throw std::runtime_error(o.input + ": no constraints, nothing to optimise");
   o.chain_guess = decideChain(o, report);
 
-  toro::TreeOptimizerOptions tree_options;
-  tree_options.gamma = o.gamma;
-  const std::string invalid = tree_options.validate();
-  if (!invalid.empty()) throw UsageError(invalid);
-  toro::TreeOptimizer optimizer(tree_options);
+  const toro::OptimizeOptions options = optimizeOptions(o);
+  toro::PoseGraph estimate = graph;
   RunLog log;
-  const Clock::time_point setup_start = Clock::now();
-  optimizer.setGraph(graph,
-                     o.chain_guess ? toro::InitialGuess::kChainOnTree : toro::InitialGuess::kFromGraph);
-  log.setup_seconds = secondsSince(setup_start);
-
-  const Measures before = measure(optimizer.graph());
-  if (!o.quiet) {
-    printHeader();
-    printLine("start", 0, 0.0, before);
-  }
-  runPhase(Phase{"tree", o.iterations, [&] { optimizer.iterate(); },
-                 [&]() -> const toro::PoseGraph& { return optimizer.graph(); }},
-           !o.quiet, log);
-  printSummary(o, graph, before, measure(optimizer.graph()), log);
+  Measures before;
+  // Times printed are the optimiser's: setup (tree, initial guess) and callback time excluded.
+  const auto on_iteration = [&](const toro::OptimizeIteration& it) {
+    const Clock::time_point measure_start = Clock::now();
+    if (it.phase == toro::OptimizePhase::kStart) {
+      log.setup_seconds = it.seconds;
+      before = measure(*it.estimate);
+      if (!o.quiet) {
+        printHeader();
+        printLine("start", 0, 0.0, before);
+      }
+    } else if (!o.quiet) {
+      const double seconds = it.seconds - log.setup_seconds - log.measure_seconds;
+      if (it.phase == toro::OptimizePhase::kToro) {
+        printLine("tree", it.iteration, seconds, measure(*it.estimate));
+      } else {
+        printFinishLine(it, seconds);
+      }
+    }
+    log.measure_seconds += secondsSince(measure_start);
+  };
+  const toro::OptimizeReport result = toro::optimizeGraph(estimate, options, on_iteration);
+  log.iterations = result.toro_iterations + result.finish.iterations;
+  log.optimise_seconds = result.seconds - log.setup_seconds - log.measure_seconds;
+  printSummary(o, graph, before, measure(estimate), log, result);
   if (!o.output.empty()) {
     toro::WriteOptions write_options;
     write_options.toro_information_order = o.toro_order;
-    toro::writeGraph(optimizer.graph(), o.output, write_options);
+    toro::writeGraph(estimate, o.output, write_options);
     if (!o.quiet) std::printf("wrote %s\n", o.output.c_str());
   }
   return 0;

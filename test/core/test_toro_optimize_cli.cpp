@@ -80,7 +80,7 @@ std::vector<std::string> linesStartingWith(const std::string& text, const std::s
 
 TEST_F(ToroOptimizeCli, OptimisesReportsEveryIterationAndWritesTheResult) {
   const fs::path output = dir_ / "result.g2o";
-  const Result r = run("-i 5 -o " + output.string() + " " + kSmallGrid);
+  const Result r = run("--mode toro -i 5 -o " + output.string() + " " + kSmallGrid);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_TRUE(r.err.empty()) << r.err;
   EXPECT_NE(r.out.find("125 vertices, 297 edges"), std::string::npos) << r.out;
@@ -106,7 +106,7 @@ TEST_F(ToroOptimizeCli, OptimisesReportsEveryIterationAndWritesTheResult) {
 }
 
 TEST_F(ToroOptimizeCli, QuietPrintsOnlyTheSummary) {
-  const Result r = run("-q -i 3 --initial-guess file " + kSmallGrid);
+  const Result r = run("--mode toro -q -i 3 --initial-guess file " + kSmallGrid);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_TRUE(linesStartingWith(r.out, "tree ").empty()) << r.out;
   ASSERT_EQ(linesStartingWith(r.out, "summary:").size(), 1u) << r.out;
@@ -114,6 +114,43 @@ TEST_F(ToroOptimizeCli, QuietPrintsOnlyTheSummary) {
   // With the file's poses the chi2 before is the chi2 of the file as given.
   const double file_chi2 = toro::g2oChi2(toro::readGraph(kSmallGrid));
   EXPECT_NEAR(numberAfter(r.out, "before", "g2o chi2"), file_chi2, 1e-9 * file_chi2);  // printed to 10 digits
+}
+
+TEST_F(ToroOptimizeCli, DefaultModeRunsTreeThenFinishToTheBestKnownChi2) {
+  const fs::path output = dir_ / "finished.g2o";
+  const Result r = run("-o " + output.string() + " " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::vector<std::string> tree = linesStartingWith(r.out, "tree ");
+  const std::vector<std::string> finish = linesStartingWith(r.out, "finish ");
+  ASSERT_FALSE(tree.empty()) << r.out;
+  ASSERT_FALSE(finish.empty()) << r.out;
+  EXPECT_LT(r.out.find(tree.back()), r.out.find(finish.front()));  // the tree phase comes first
+  EXPECT_NE(r.out.find("mode    toro+finish"), std::string::npos) << r.out;
+  // REFERENCE.md (B): best known g2o chi2 of smallGrid3D.g2o.
+  const double after = numberAfter(r.out, "after", "g2o chi2");
+  EXPECT_NEAR(after, 458.154, 1e-4 * 458.154) << r.out;
+  EXPECT_NEAR(toro::g2oChi2(toro::readGraph(output.string())), after, 1e-8 * after);
+  std::istringstream last(finish.back());
+  std::string phase;
+  double iteration = 0, seconds = 0, chi2 = 0;
+  last >> phase >> iteration >> seconds >> chi2;
+  EXPECT_NEAR(chi2, after, 1e-7 * after);
+}
+
+TEST_F(ToroOptimizeCli, FinishOnlyFromTheFilePosesAndBadFinishOptions) {
+  Result r = run("-q --mode finish --initial-guess file " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("finish: 0 tree iterations"), std::string::npos) << r.out;
+  EXPECT_NEAR(numberAfter(r.out, "after", "g2o chi2"), 458.154, 1e-4 * 458.154) << r.out;
+  r = run("--mode newton " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(r.err, "toro_optimize: --mode must be toro, finish or toro+finish, got 'newton' (see --help)\n");
+  r = run("--switch-decrease -1 " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--switch-decrease needs a non-negative number"), std::string::npos) << r.err;
+  r = run("--finish-iterations 0 " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("finish: max_iterations must be at least 1"), std::string::npos) << r.err;
 }
 
 TEST_F(ToroOptimizeCli, MalformedFileGivesFileLineMessageAndNonZeroExit) {

@@ -32,11 +32,16 @@ struct OptimizeOptions {
   // Start: the poses stored in the graph, or the measurements chained along TORO's tree.
   InitialGuess initial_guess = InitialGuess::kChainOnTree;
   TreeOptimizerOptions toro;
-  // TORO phase length.  In kToro mode the switch threshold still ends the phase early when it is
-  // positive; set it to 0 to run exactly toro_max_iterations.
-  std::size_t toro_max_iterations = 30;
+  // TORO phase length (0: no TORO iteration, only the initial guess).  In kToro mode the switch
+  // threshold still ends the phase early when it is positive; set it to 0 to run exactly
+  // toro_max_iterations.
+  // Defaults chosen by measurement (bench/finish_results.md): on sphere2500, parking-garage,
+  // smallGrid3D, intel, MIT, manhattanOlson3500 and city10000 a threshold of 0.2 (3-9 TORO
+  // iterations) reaches the same minima as 0.1 ... 0.01 with the fewest iterations, including
+  // MIT, where the finish alone from the file's poses stops in a local minimum.
+  std::size_t toro_max_iterations = 100;
   std::size_t toro_min_iterations = 3;
-  double switch_relative_decrease = 0.05;
+  double switch_relative_decrease = 0.2;
   FinishOptions finish;
 
   // Empty when valid, otherwise what is wrong (including the nested options).
@@ -53,7 +58,10 @@ struct OptimizeIteration {
   double chi2 = 0.0;          // g2o chi2 (REFERENCE.md (B)) after the iteration
   double lambda = 0.0;        // finish: damping of the step; TORO: learning rate
   bool accepted = true;       // finish: whether the step was taken
-  double seconds = 0.0;       // wall time since optimizeGraph() started
+  double seconds = 0.0;       // wall time since optimizeGraph() started (callbacks included)
+  // The current estimate, for callers that measure more than chi2; valid during the callback
+  // only.  Null in the finish phase, whose state lives inside the solver until it ends.
+  const PoseGraph* estimate = nullptr;
 };
 
 struct OptimizeReport {

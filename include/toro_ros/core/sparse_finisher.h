@@ -34,7 +34,7 @@ struct FinishOptions {
   // Stop after this many iterations (accepted or rejected steps).
   std::size_t max_iterations = 100;
   // Stop when an accepted step lowers chi2 by less than this fraction of its value.
-  double relative_decrease_tolerance = 1e-12;
+  double relative_decrease_tolerance = 1e-7;
   // Stop when the largest gradient entry |J^T Omega e|_inf is below this (chi2 per metre/radian).
   double gradient_tolerance = 1e-10;
   // Stop when the largest entry of a step (metres, radians) is below this.

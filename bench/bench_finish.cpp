@@ -1,0 +1,140 @@
+// Benchmark of the sparse finish and of TORO-then-finish (issue 3).  Per case: median of N runs
+// of optimizeGraph() (file reading outside the timed region, reported separately), wall and CPU
+// time, iterations of both phases, final g2o chi2 and its relative difference to the best known
+// value of REFERENCE.md (B).  Then a comparison of the sparse Cholesky back ends on the finish
+// alone.  Writes Markdown to stdout.
+//
+//   bench_finish [--datasets DIR] [--runs 5] [--only NAME]
+#include <time.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/graph_optimizer.h"
+#include "toro_ros/core/metrics.h"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using namespace toro;
+
+double cpuSeconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+struct Case {
+  const char* file;
+  OptimizeMode mode;
+  InitialGuess guess;
+  double reference;  // REFERENCE.md (B)
+  double tolerance;  // relative
+  double target_seconds;  // 0: none
+  LinearSolverType solver = LinearSolverType::kCholmodSupernodal;
+};
+
+struct Outcome {
+  double wall = 0, cpu = 0, read = 0, chi2 = 0, factorization = 0;
+  std::size_t toro_iterations = 0, finish_iterations = 0;
+};
+
+Outcome runCase(const std::string& dir, const Case& c, int runs) {
+  const Clock::time_point read_start = Clock::now();
+  const PoseGraph original = readGraph(dir + "/" + c.file);
+  Outcome out;
+  out.read = std::chrono::duration<double>(Clock::now() - read_start).count();
+  OptimizeOptions options;
+  options.mode = c.mode;
+  options.initial_guess = c.guess;
+  options.finish.linear_solver = c.solver;
+  std::vector<double> wall, cpu, factorization;
+  for (int r = 0; r < runs; ++r) {
+    PoseGraph g = original;
+    const double cpu_start = cpuSeconds();
+    const Clock::time_point start = Clock::now();
+    const OptimizeReport report = optimizeGraph(g, options);
+    wall.push_back(std::chrono::duration<double>(Clock::now() - start).count());
+    cpu.push_back(cpuSeconds() - cpu_start);
+    factorization.push_back(report.finish.iterations ? report.finish.factorization_seconds / report.finish.iterations : 0.0);
+    out.chi2 = report.final_chi2;
+    out.toro_iterations = report.toro_iterations;
+    out.finish_iterations = report.finish.iterations;
+  }
+  out.wall = median(wall);
+  out.cpu = median(cpu);
+  out.factorization = median(factorization);
+  return out;
+}
+
+const char* guessName(InitialGuess g) { return g == InitialGuess::kChainOnTree ? "chained" : "file"; }
+
+void printRow(const Case& c, const Outcome& o) {
+  const double rel = std::abs(o.chi2 - c.reference) / c.reference;
+  const bool ok_value = rel <= c.tolerance;
+  const bool ok_time = c.target_seconds <= 0.0 || o.wall <= c.target_seconds;
+  std::printf("| %s | %s | %s | %s | %zu | %zu | %.3f | %.3f | %.4f | %.4f | %.10g | %.1e %s | %s |\n", c.file,
+              optimizeModeName(c.mode), guessName(c.guess), linearSolverName(c.solver), o.toro_iterations,
+              o.finish_iterations, o.wall, o.cpu, o.factorization, o.read, o.chi2, rel, ok_value ? "ok" : "MISSED",
+              c.target_seconds > 0 ? (ok_time ? "ok" : "over") : "-");
+  std::fflush(stdout);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string dir = TORO_DATASETS_DIR;
+  int runs = 5;
+  std::string only;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string key = argv[i];
+    if (key == "--datasets") dir = argv[i + 1];
+    else if (key == "--runs") runs = std::max(1, std::atoi(argv[i + 1]));
+    else if (key == "--only") only = argv[i + 1];
+    else {
+      std::fprintf(stderr, "unknown option %s\n", key.c_str());
+      return 2;
+    }
+  }
+  const auto kToroFinish = OptimizeMode::kToroThenFinish;
+  const auto kFinish = OptimizeMode::kFinish;
+  const auto kChain = InitialGuess::kChainOnTree;
+  const auto kFile = InitialGuess::kFromGraph;
+  std::vector<Case> cases = {
+      {"sphere2500.g2o", kToroFinish, kChain, 727.150, 1e-4, 0.3},
+      {"sphere2500.g2o", kFinish, kFile, 727.150, 1e-4, 0.3},
+      {"parking-garage.g2o", kToroFinish, kChain, 1.23869, 1e-4, 0.12},
+      {"parking-garage.g2o", kFinish, kFile, 1.23869, 1e-4, 0.12},
+      {"sphere_bignoise_vertex3.g2o", kFinish, kFile, 743862.7, 1e-3, 0.0},
+      {"sphere_bignoise_vertex3.g2o", kToroFinish, kChain, 743862.7, 1e-3, 0.0},
+      {"2d/MIT.g2o", kToroFinish, kChain, 41.1633, 1e-4, 0.0},
+      {"2d/intel.g2o", kToroFinish, kChain, 45.0047, 1e-4, 0.0},
+      {"2d/manhattanOlson3500.g2o", kToroFinish, kChain, 146.077, 1e-4, 0.0},
+  };
+  for (LinearSolverType s : {LinearSolverType::kCholmodSimplicial, LinearSolverType::kSimplicialLDLT}) {
+    cases.push_back({"sphere2500.g2o", kFinish, kFile, 727.150, 1e-4, 0.3, s});
+    cases.push_back({"parking-garage.g2o", kFinish, kFile, 1.23869, 1e-4, 0.12, s});
+  }
+  std::printf("runs per case: %d (median); OPENBLAS_NUM_THREADS=%s\n\n", runs,
+              std::getenv("OPENBLAS_NUM_THREADS") ? std::getenv("OPENBLAS_NUM_THREADS") : "(unset)");
+  std::printf("| file | mode | start | linear solver | TORO it. | finish it. | wall s | CPU s | factorise+solve s/it. | read s | final chi2 | rel. diff | time target |\n");
+  std::printf("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n");
+  for (const Case& c : cases) {
+    if (!only.empty() && only != c.file) continue;
+    const bool slow = std::string(c.file).find("bignoise") != std::string::npos;
+    printRow(c, runCase(dir, c, slow ? std::min(runs, 1) : runs));
+  }
+  return 0;
+}
