@@ -50,10 +50,7 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
 
   worker_ = std::thread(&MapCorrectorNode::workerLoop, this);
 
-  odom_sub_ = nh_.subscribe(names::kOdometryTopic, 100, &MapCorrectorNode::odometryCallback, this,
-                            ros::TransportHints().tcpNoDelay());
-  loop_sub_ = nh_.subscribe(names::kLoopClosureTopic, 100, &MapCorrectorNode::loopClosureCallback, this,
-                            ros::TransportHints().tcpNoDelay());
+  subscribeInputs();
 
   ros::NodeHandle service_nh(private_nh_);
   service_nh.setCallbackQueue(&service_queue_);
@@ -79,9 +76,7 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
   diagnostics_.add("map corrector", this, &MapCorrectorNode::diagnose);
   diagnostics_timer_ = nh_.createTimer(ros::Duration(1.0 / options_.diagnostics_rate_hz),
                                        [this](const ros::TimerEvent&) { diagnostics_.update(); });
-  ROS_INFO_STREAM("map corrector: listening on " << odom_sub_.getTopic() << " and " << loop_sub_.getTopic()
-                                                 << ", publishing " << options_.map_frame << " -> "
-                                                 << options_.odom_frame);
+  ROS_INFO_STREAM("map corrector: publishing " << options_.map_frame << " -> " << options_.odom_frame);
 }
 
 MapCorrectorNode::~MapCorrectorNode() {
@@ -89,8 +84,7 @@ MapCorrectorNode::~MapCorrectorNode() {
   tf_timer_.stop();
   visualization_timer_.stop();
   diagnostics_timer_.stop();
-  odom_sub_.shutdown();
-  loop_sub_.shutdown();
+  for (ros::Subscriber& sub : input_subs_) sub.shutdown();
   if (service_spinner_) service_spinner_->stop();
   if (tf_spinner_) tf_spinner_->stop();
   stop_ = true;
@@ -98,27 +92,35 @@ MapCorrectorNode::~MapCorrectorNode() {
   if (worker_.joinable()) worker_.join();
 }
 
-void MapCorrectorNode::odometryCallback(const nav_msgs::Odometry::ConstPtr& msg) {
-  // Content is validated once, in the pipeline (so the offline runner validates identically);
-  // here only what the transport knows: which frame the message claims.
-  if (!msg->header.frame_id.empty() && msg->header.frame_id != options_.odom_frame && !warned_frame_.exchange(true))
-    ROS_WARN_STREAM("map corrector: odometry in frame '" << msg->header.frame_id << "' but odom_frame is '"
-                                                         << options_.odom_frame << "'; map->"
-                                                         << options_.odom_frame << " is published regardless");
-  if (!queue_.push(msg)) ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, odometry dropped");
+void MapCorrectorNode::subscribeInputs() {
+  forEachPipelineInput([this](const char* topic, auto handler) {
+    using M = MessageOf<decltype(handler)>;
+    const boost::function<void(const boost::shared_ptr<const M>&)> callback =
+        [this, topic](const boost::shared_ptr<const M>& msg) { enqueue<M>(msg, topic); };
+    input_subs_.push_back(nh_.subscribe<M>(topic, 100, callback, ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay()));
+    ROS_INFO_STREAM("map corrector: listening on " << input_subs_.back().getTopic());
+  });
 }
 
-void MapCorrectorNode::loopClosureCallback(const LoopClosure::ConstPtr& msg) {
-  if (!queue_.push(msg)) ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, loop closure dropped");
+template <class M>
+void MapCorrectorNode::enqueue(const boost::shared_ptr<const M>& msg, const char* what) {
+  checkFrame(*msg);
+  // Never blocks: a full queue drops the message and counts it (diagnostics, ~get_status).
+  if (!queue_.push(Item(PipelineMessage(msg)))) ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, %s message dropped", what);
+}
+
+void MapCorrectorNode::checkFrame(const nav_msgs::Odometry& msg) {
+  if (!msg.header.frame_id.empty() && msg.header.frame_id != options_.odom_frame && !warned_frame_.exchange(true))
+    ROS_WARN_STREAM("map corrector: odometry in frame '" << msg.header.frame_id << "' but odom_frame is '"
+                                                         << options_.odom_frame << "'; map->"
+                                                         << options_.odom_frame << " is published regardless");
 }
 
 void MapCorrectorNode::process(Item& item) {
-  if (auto* odom = std::get_if<nav_msgs::Odometry::ConstPtr>(&item))
-    pipeline_->handleOdometry(**odom);
-  else if (auto* loop = std::get_if<LoopClosure::ConstPtr>(&item))
-    pipeline_->handleLoopClosure(**loop);
+  if (auto* command = std::get_if<Command>(&item))
+    (*command)(*pipeline_);
   else
-    std::get<Command>(item)(*pipeline_);
+    feedPipeline(*pipeline_, std::get<PipelineMessage>(item));
 }
 
 void MapCorrectorNode::workerLoop() {

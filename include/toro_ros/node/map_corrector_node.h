@@ -29,6 +29,7 @@
 #include "toro_ros/Optimize.h"
 #include "toro_ros/node/input_queue.h"
 #include "toro_ros/node/node_options.h"
+#include "toro_ros/pipeline/input_table.h"
 #include "toro_ros/pipeline/pipeline.h"
 
 namespace toro_ros {
@@ -45,10 +46,16 @@ class MapCorrectorNode {
 
  private:
   using Command = std::function<void(Pipeline&)>;
-  using Item = std::variant<nav_msgs::Odometry::ConstPtr, LoopClosure::ConstPtr, Command>;
+  using Item = std::variant<PipelineMessage, Command>;
 
-  void odometryCallback(const nav_msgs::Odometry::ConstPtr& msg);
-  void loopClosureCallback(const LoopClosure::ConstPtr& msg);
+  // One subscription per row of the input table (pipeline/input_table.h), shared with the
+  // offline runner so both feed the pipeline the same way.
+  void subscribeInputs();
+  template <class M>
+  void enqueue(const boost::shared_ptr<const M>& msg, const char* what);
+  // Transport-level checks (content is validated once, in the pipeline).
+  void checkFrame(const nav_msgs::Odometry& msg);
+  void checkFrame(const LoopClosure&) {}
   void workerLoop();
   void process(Item& item);
   void publishSnapshot();
@@ -85,7 +92,7 @@ class MapCorrectorNode {
 
   tf2_ros::TransformBroadcaster tf_broadcaster_;
   ros::Publisher path_pub_, markers_pub_;
-  ros::Subscriber odom_sub_, loop_sub_;
+  std::vector<ros::Subscriber> input_subs_;
   std::vector<ros::ServiceServer> services_;
   ros::CallbackQueue tf_queue_, service_queue_;
   ros::Timer tf_timer_, visualization_timer_, diagnostics_timer_;
