@@ -1,0 +1,85 @@
+// toro_offline: a bag through the node's Pipeline at full speed (no master, no pacing), like
+// cartographer_ros's offline node.  Messages are read with rosbag::View in bag-time order (the
+// order `rosbag play` would publish them), handed to the pipeline through the shared topic table
+// (pipeline/input_table.h), and after each message the scheduled optimisation runs until nothing
+// is due, which is what the node's worker does when it keeps up with its input.
+#pragma once
+
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <rosbag/message_instance.h>
+
+#include "toro_ros/node/node_options.h"
+#include "toro_ros/pipeline/pipeline.h"
+
+namespace toro_ros {
+namespace offline {
+
+struct OfflineOptions {
+  std::string bag_path;
+  std::string config_path;     // node parameter file (config/map_corrector.yaml keys); empty = defaults
+  std::string output_dir = "out/offline";
+  std::string topic_namespace = "/";  // where the node would run: its relative topics resolve here
+  int final_iterations = 20;   // full passes after the bag, as `~optimize` would (0: none)
+  bool iteration_curve = true;  // chi2 after each final pass (runs the final passes on a copy too)
+  bool progress = true;        // progress bar on stderr
+  std::string truth_path;      // optional "<stem>.truth.g2o" (+ the odometry sidecar) for scoring
+  std::string validate() const;
+};
+
+// One point of the error curve: after an optimisation pass.
+struct CurvePoint {
+  std::size_t pass = 0;       // 1-based over the whole run
+  double stamp_sec = 0.0;     // newest odometry stamp when it ran (0 for the final passes)
+  std::size_t keyframes = 0;
+  std::size_t constraints = 0;
+  double chi2 = 0.0;
+  bool final_phase = false;   // one of the final full passes after the bag
+};
+
+struct OfflineRun {
+  std::size_t messages = 0;   // read from the bag on the input topics
+  std::map<std::string, std::size_t> messages_by_topic;
+  double bag_duration_sec = 0.0;
+  double wall_sec = 0.0;       // everything from opening the bag to the end of the final passes
+  double optimization_sec = 0.0;  // part of it spent in optimisation passes
+  std::vector<CurvePoint> curve;
+  OptimizeResult final_result;
+};
+
+// Feeds one bag message to the pipeline: the table built from forEachPipelineInput.
+using BagHandler = std::function<void(const rosbag::MessageInstance&, Pipeline&)>;
+// topic in the bag -> handler.  Throws std::runtime_error for a message whose type does not fit.
+std::map<std::string, BagHandler> makeBagHandlers(const std::string& topic_namespace);
+
+// "ns" + "name" as ROS resolves a relative name in a namespace ("/" + "odom" = "/odom").
+std::string resolveName(const std::string& ns, const std::string& name);
+
+class OfflineRunner {
+ public:
+  // Throws std::invalid_argument naming the problem (options, parameter file keys or values).
+  explicit OfflineRunner(const OfflineOptions& options);
+  // Reads the whole bag.  Throws std::runtime_error naming the bag (and topic/stamp) on errors.
+  OfflineRun run();
+  Pipeline& pipeline() { return *pipeline_; }
+  const NodeOptions& nodeOptions() const { return node_options_; }
+
+ private:
+  void drainSchedule(double stamp_sec, OfflineRun* run);
+  void finalPasses(OfflineRun* run);
+
+  OfflineOptions options_;
+  NodeOptions node_options_;
+  std::unique_ptr<Pipeline> pipeline_;
+  std::vector<std::string> warnings_;
+};
+
+// Loads node options from a parameter file (or the defaults for an empty path).  Throws
+// std::invalid_argument naming the file and every bad or unknown key.
+NodeOptions loadNodeOptionsFile(const std::string& path);
+
+}  // namespace offline
+}  // namespace toro_ros

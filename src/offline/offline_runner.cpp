@@ -1,0 +1,149 @@
+#include "toro_ros/offline/offline_runner.h"
+
+#include <chrono>
+#include <iostream>
+#include <sstream>
+#include <stdexcept>
+
+#include <rosbag/bag.h>
+#include <rosbag/exceptions.h>
+#include <rosbag/view.h>
+
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/core/tree_optimizer.h"
+#include "toro_ros/offline/flat_yaml.h"
+#include "toro_ros/offline/progress_bar.h"
+#include "toro_ros/pipeline/input_table.h"
+
+namespace toro_ros {
+namespace offline {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+constexpr std::size_t kMaxPrintedWarnings = 20;
+
+}  // namespace
+
+std::string OfflineOptions::validate() const {
+  if (bag_path.empty()) return "bag: missing";
+  if (output_dir.empty()) return "output directory: missing";
+  if (final_iterations < 0) return "final_iterations must be >= 0";
+  if (topic_namespace.empty() || topic_namespace[0] != '/') return "namespace must start with '/'";
+  return "";
+}
+
+std::string resolveName(const std::string& ns, const std::string& name) {
+  if (!name.empty() && name[0] == '/') return name;
+  return ns.back() == '/' ? ns + name : ns + "/" + name;
+}
+
+std::map<std::string, BagHandler> makeBagHandlers(const std::string& topic_namespace) {
+  std::map<std::string, BagHandler> table;
+  forEachPipelineInput([&](const char* topic, auto handler) {
+    using M = MessageOf<decltype(handler)>;
+    table[resolveName(topic_namespace, topic)] = [](const rosbag::MessageInstance& m, Pipeline& pipeline) {
+      const boost::shared_ptr<const M> msg = m.instantiate<M>();
+      if (!msg)
+        throw std::runtime_error("topic " + m.getTopic() + " at " + stampString(m.getTime()) + " has type " +
+                                 m.getDataType() + ", expected " + ros::message_traits::datatype<M>());
+      feedPipeline(pipeline, PipelineMessage(msg));
+    };
+  });
+  return table;
+}
+
+NodeOptions loadNodeOptionsFile(const std::string& path) {
+  OptionsReport report;
+  const NodeOptions options = loadNodeOptions(path.empty() ? XmlRpc::XmlRpcValue() : readFlatYaml(path), &report);
+  std::ostringstream problems;
+  for (const std::string& key : report.unknown_keys) problems << "\n  unknown key " << key;
+  for (const std::string& e : report.errors) problems << "\n  " << e;
+  if (!problems.str().empty()) throw std::invalid_argument(path + ": invalid parameters:" + problems.str());
+  return options;
+}
+
+OfflineRunner::OfflineRunner(const OfflineOptions& options)
+    : options_(options), node_options_(loadNodeOptionsFile(options.config_path)) {
+  const std::string invalid = options.validate();
+  if (!invalid.empty()) throw std::invalid_argument(invalid);
+  pipeline_ = std::make_unique<Pipeline>(node_options_.pipeline, [this](const std::string& w) {
+    if (warnings_.size() < kMaxPrintedWarnings) std::cerr << "\nwarning: " << w << '\n';
+    warnings_.push_back(w);
+  });
+}
+
+void OfflineRunner::drainSchedule(double stamp_sec, OfflineRun* run) {
+  // As the node's worker: after the input, run passes until nothing is due.
+  do {
+    const auto t0 = Clock::now();
+    if (!pipeline_->runScheduledOptimization()) break;
+    run->optimization_sec += since(t0);
+    const PipelineStatus s = pipeline_->status();
+    run->curve.push_back(CurvePoint{run->curve.size() + 1, stamp_sec, s.keyframes, s.constraints, s.last_chi2, false});
+  } while (pipeline_->hasScheduledWork());
+}
+
+void OfflineRunner::finalPasses(OfflineRun* run) {
+  if (options_.final_iterations <= 0 || pipeline_->graph().numConstraints() == 0) return;
+  const auto n = static_cast<unsigned>(options_.final_iterations);
+  if (options_.iteration_curve) {
+    // The same passes on a copy, to record chi2 after each one (Pipeline::optimize reports only
+    // the end); the copy starts from the same poses and schedule, so its end matches the pipeline's.
+    toro::TreeOptimizerOptions o;
+    o.gamma = node_options_.pipeline.optimization.gamma;
+    toro::TreeOptimizer copy(o);
+    copy.setGraph(pipeline_->graph(), toro::InitialGuess::kFromGraph);
+    for (unsigned i = 0; i < n; ++i) {
+      copy.iterate();
+      const toro::PoseGraph& g = copy.graph();
+      run->curve.push_back(
+          CurvePoint{run->curve.size() + 1, 0.0, g.numNodes(), g.numConstraints(), toro::g2oChi2(g), true});
+    }
+  }
+  const auto t0 = Clock::now();
+  run->final_result = pipeline_->optimize(n, "full");
+  run->optimization_sec += since(t0);
+}
+
+OfflineRun OfflineRunner::run() {
+  const auto t0 = Clock::now();
+  OfflineRun run;
+  rosbag::Bag bag;
+  try {
+    bag.open(options_.bag_path, rosbag::bagmode::Read);
+  } catch (const rosbag::BagException& e) {
+    throw std::runtime_error(options_.bag_path + ": cannot open the bag: " + e.what());
+  }
+  const std::map<std::string, BagHandler> handlers = makeBagHandlers(options_.topic_namespace);
+  std::vector<std::string> topics;
+  for (const auto& entry : handlers) topics.push_back(entry.first);
+  rosbag::View view(bag, rosbag::TopicQuery(topics));
+  if (view.size() == 0)
+    throw std::runtime_error(options_.bag_path + ": no message on " + topics.front() + " or " + topics.back());
+  const ros::Time begin = view.getBeginTime(), end = view.getEndTime();
+  run.bag_duration_sec = (end - begin).toSec();
+  ProgressBar bar(std::cerr, options_.progress);
+  for (const rosbag::MessageInstance& m : view) {
+    try {
+      handlers.at(m.getTopic())(m, *pipeline_);
+    } catch (const std::exception& e) {
+      throw std::runtime_error(options_.bag_path + ": " + e.what());
+    }
+    ++run.messages;
+    ++run.messages_by_topic[m.getTopic()];
+    drainSchedule(m.getTime().toSec(), &run);
+    bar.update(run.bag_duration_sec > 0 ? (m.getTime() - begin).toSec() / run.bag_duration_sec : 1.0, run.messages);
+  }
+  bar.finish(run.messages);
+  if (warnings_.size() > kMaxPrintedWarnings)
+    std::cerr << "(" << warnings_.size() - kMaxPrintedWarnings << " more warnings not printed)\n";
+  finalPasses(&run);
+  run.wall_sec = since(t0);
+  return run;
+}
+
+}  // namespace offline
+}  // namespace toro_ros

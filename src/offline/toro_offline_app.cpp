@@ -1,0 +1,68 @@
+#include <filesystem>
+#include <iostream>
+
+#include "toro_ros/offline/apps.h"
+#include "toro_ros/offline/cli.h"
+#include "toro_ros/offline/graph_to_bag.h"
+#include "toro_ros/offline/offline_output.h"
+
+namespace toro_ros {
+namespace offline {
+
+namespace {
+
+const std::vector<ArgSpec> kSpecs = {
+    {"config", "node parameter file (keys of config/map_corrector.yaml). Default: the node's defaults"},
+    {"output-dir", "where corrected.g2o, corrected_poses.bag and summary.json go. Default out/offline"},
+    {"namespace", "namespace the node would run in; its relative topics odom and loop_closure resolve there. "
+                  "Default /"},
+    {"final-iterations", "full passes after the bag, as ~optimize would run them (0: none). Default 20"},
+    {"truth", "truth file for scoring (<stem>.truth.g2o from graph_to_bag). Default: <bag stem>.truth.g2o if "
+              "it exists"},
+    {"no-curve", "do not record chi2 after each final pass (saves one extra run of the final passes)", false},
+    {"quiet", "no progress bar", false},
+};
+
+OfflineOptions optionsFromArgs(const ParsedArgs& a) {
+  OfflineOptions o;
+  o.bag_path = a.positional.at(0);
+  o.config_path = a.text("config", "");
+  o.output_dir = a.text("output-dir", o.output_dir);
+  o.topic_namespace = a.text("namespace", o.topic_namespace);
+  o.final_iterations = a.integer("final-iterations", o.final_iterations);
+  o.iteration_curve = !a.has("no-curve");
+  o.progress = !a.has("quiet");
+  const std::string beside = bagStem(o.bag_path) + ".truth.g2o";
+  o.truth_path = a.text("truth", std::filesystem::exists(beside) ? beside : "");
+  return o;
+}
+
+}  // namespace
+
+int runToroOffline(int argc, char** argv) {
+  const std::string synopsis = "toro_offline BAG [options]";
+  try {
+    const ParsedArgs args = parseArgs(argc, argv, kSpecs);
+    if (args.help || args.positional.size() != 1) {
+      std::cerr << usage(synopsis, kSpecs);
+      return args.help ? 0 : 2;
+    }
+    const OfflineOptions options = optionsFromArgs(args);
+    OfflineRunner runner(options);
+    const OfflineRun run = runner.run();
+    const OfflineSummary summary = summarize(runner, run, options);
+    writeOutputs(runner, summary, options);
+    std::cout << describeSummary(summary) << "wrote " << options.output_dir
+              << "/{corrected.g2o, corrected.g2o.stamps, corrected_poses.bag, summary.json}\n";
+    return 0;
+  } catch (const std::invalid_argument& e) {
+    std::cerr << "toro_offline: " << e.what() << "\n";
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << "toro_offline: " << e.what() << "\n";
+    return 1;
+  }
+}
+
+}  // namespace offline
+}  // namespace toro_ros
