@@ -1,0 +1,27 @@
+# Fuzz targets (test/fuzz/fuzz_*.cpp, each defining LLVMFuzzerTestOneInput).
+# - Every build: a replay executable per target runs the committed corpus and the regression inputs
+#   (crashes found earlier) through the target; it is a ctest test, so no compiler support is needed.
+# - With clang and -DTORO_BUILD_FUZZERS=ON: real libFuzzer binaries (ASan+UBSan), run by scripts/fuzz.sh.
+option(TORO_BUILD_FUZZERS "Build libFuzzer targets (needs clang)" OFF)
+file(GLOB TORO_FUZZ_SOURCES CONFIGURE_DEPENDS ${PROJECT_SOURCE_DIR}/test/fuzz/fuzz_*.cpp)
+foreach(src ${TORO_FUZZ_SOURCES})
+  get_filename_component(name ${src} NAME_WE)
+  string(REGEX REPLACE "^fuzz_" "" target_name ${name})
+  if(CATKIN_ENABLE_TESTING)
+    add_executable(${name}_replay ${src} ${PROJECT_SOURCE_DIR}/test/fuzz/replay_main.cpp)
+    target_link_libraries(${name}_replay toro_core)
+    add_dependencies(tests ${name}_replay)
+    add_test(NAME ${name}_replay
+             COMMAND ${name}_replay ${PROJECT_SOURCE_DIR}/test/fuzz/corpus/${target_name}
+                     ${PROJECT_SOURCE_DIR}/test/fuzz/regressions/${target_name})
+  endif()
+  if(TORO_BUILD_FUZZERS)
+    if(NOT CMAKE_CXX_COMPILER_ID MATCHES "Clang")
+      message(FATAL_ERROR "TORO_BUILD_FUZZERS needs clang (configure with -DCMAKE_CXX_COMPILER=clang++)")
+    endif()
+    add_executable(${name} ${src})
+    target_compile_options(${name} PRIVATE -fsanitize=fuzzer,address,undefined)
+    target_link_options(${name} PRIVATE -fsanitize=fuzzer,address,undefined)
+    target_link_libraries(${name} toro_core)
+  endif()
+endforeach()
