@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 
 namespace toro_ros {
@@ -221,14 +222,46 @@ bool Pipeline::runScheduledOptimization() {
   return true;
 }
 
-OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) {
+void Pipeline::replaceGraph(const toro::PoseGraph& graph) {
+  // Replayed through the online path (addNode/addConstraint keep the given poses, as kFromGraph
+  // would) rather than setGraph: that is the path every live keyframe takes, and TreeOptimizer's
+  // online growth right after setGraph wrote out of bounds in the core at the time of writing
+  // (see the issue 4 report).
+  optimizer_ = toro::TreeOptimizer(optimizerOptions(options_));
+  for (const toro::Node& n : graph.nodes()) optimizer_.addNode(n.id, n.pose);
+  for (const toro::Constraint& c : graph.constraints()) optimizer_.addConstraint(c);
+  optimizer_.clearAffected();
+  ++revision_;
+}
+
+OptimizeResult Pipeline::finish(unsigned iterations) {
   OptimizeResult r;
-  if (mode == "finish") {
-    // TODO(issue 4): call the core's sparse second-order finish once its API exists.
-    r.message = "finish not available: the core's second-order finish is not built yet";
+  toro::FinishOptions o;
+  if (iterations > 0) o.max_iterations = iterations;
+  if (!toro::cholmodAvailable()) o.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
+  toro::PoseGraph graph = optimizer_.graph();
+  try {
+    const toro::FinishReport report = toro::LevenbergMarquardt(o).optimize(graph);
+    r.chi2_before = report.initial_chi2;
+    r.chi2_after = report.final_chi2;
+    r.time_sec = report.seconds;
+    r.iterations = static_cast<int>(report.iterations);
+    r.message = std::to_string(report.iterations) + " Levenberg-Marquardt iterations, stopped: " +
+                toro::finishStopName(report.stop);
+  } catch (const std::exception& e) {
+    r.message = std::string("finish failed: ") + e.what();
     return r;
   }
-  if (mode != "full" && !mode.empty()) {
+  replaceGraph(graph);
+  last_chi2_ = r.chi2_after;
+  last_optimization_sec_ = r.time_sec;
+  r.success = true;
+  return r;
+}
+
+OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) {
+  OptimizeResult r;
+  if (mode != "full" && mode != "finish" && !mode.empty()) {
     r.message = "unknown mode '" + mode + "' (use \"full\" or \"finish\")";
     return r;
   }
@@ -236,6 +269,10 @@ OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) 
     r.message = "nothing to optimise: the graph has no constraints";
     return r;
   }
+  affected_pending_ = false;
+  full_passes_left_ = 0;
+  loop_closures_since_full_ = 0;
+  if (mode == "finish") return finish(iterations);
   r.iterations = iterations > 0 ? static_cast<int>(iterations) : options_.optimization.service_default_iterations;
   r.chi2_before = toro::g2oChi2(optimizer_.graph());
   optimizer_.setIteration(0);

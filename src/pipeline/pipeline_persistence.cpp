@@ -71,13 +71,7 @@ std::string Pipeline::loadGraph(const std::string& path) {
   if (!mismatch.empty()) return sidecarPath(path) + ": " + mismatch;
 
   clearGraph();
-  // Replayed through the online path (addNode/addConstraint keep the file's poses, as kFromGraph
-  // would) rather than setGraph: that is the path every live keyframe takes, and TreeOptimizer's
-  // online growth right after setGraph wrote out of bounds in the core at the time of writing
-  // (see the issue 4 report).
-  for (const toro::Node& n : graph.nodes()) optimizer_.addNode(n.id, n.pose);
-  for (const toro::Constraint& c : graph.constraints()) optimizer_.addConstraint(c);
-  optimizer_.clearAffected();
+  replaceGraph(graph);
   for (const KeyframeRecord& k : sidecar.keyframes) keyframes_.append(k);
   is_loop_closure_.assign(graph.numConstraints(), false);
   for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;

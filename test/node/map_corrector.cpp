@@ -243,6 +243,11 @@ TEST(MapCorrector, OptimizePauseResumeStatus) {
   EXPECT_LE(srv.response.chi2_after, srv.response.chi2_before * (1 + 1e-9));
   EXPECT_GE(srv.response.time_sec, 0.0);
   EXPECT_NEAR(client->status().last_chi2, srv.response.chi2_after, 1e-9 * (1 + srv.response.chi2_after));
+  srv.request.mode = "finish";
+  srv.request.iterations = 0;
+  ASSERT_TRUE(ros::service::call("/map_corrector/optimize", srv));
+  EXPECT_TRUE(srv.response.success) << srv.response.message;
+  EXPECT_LE(srv.response.chi2_after, srv.response.chi2_before);
   srv.request.mode = "nonsense";
   ASSERT_TRUE(ros::service::call("/map_corrector/optimize", srv));
   EXPECT_FALSE(srv.response.success);

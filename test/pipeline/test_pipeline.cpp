@@ -193,8 +193,11 @@ TEST(Pipeline, PausedRunsNoScheduledPassesButServiceOptimizeWorks) {
   EXPECT_LT(r.chi2_after, 0.5 * r.chi2_before);
   EXPECT_NEAR(r.chi2_after, toro::g2oChi2(p.graph()), 1e-9);
   EXPECT_FALSE(p.optimize(1, "bogus").success);
-  const OptimizeResult finish = p.optimize(1, "finish");
-  EXPECT_FALSE(finish.success);  // until the core's finish is wired in
+  const OptimizeResult finish = p.optimize(0, "finish");
+  ASSERT_TRUE(finish.success) << finish.message;
+  EXPECT_NEAR(finish.chi2_before, r.chi2_after, 1e-9 * (1 + r.chi2_after));
+  EXPECT_LT(finish.chi2_after, finish.chi2_before);
+  EXPECT_NEAR(finish.chi2_after, toro::g2oChi2(p.graph()), 1e-9 * (1 + finish.chi2_after));
 }
 
 TEST(Pipeline, SaveThenLoadGivesTheSameGraph) {

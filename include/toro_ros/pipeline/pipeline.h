@@ -81,7 +81,9 @@ class Pipeline {
   // True if a full round has passes left (the caller should call runScheduledOptimization again).
   bool hasScheduledWork() const;
 
-  // ~optimize: `iterations` (0: the configured default) passes; mode "full" or "finish".
+  // ~optimize: mode "full" (or empty): `iterations` TORO passes over all constraints (0: the
+  // configured default); "finish": the core's sparse Levenberg-Marquardt on the g2o chi2 with at
+  // most `iterations` iterations (0: its default).
   OptimizeResult optimize(unsigned iterations, const std::string& mode);
   void setPaused(bool paused) { paused_ = paused; }
   bool paused() const { return paused_; }
@@ -111,6 +113,9 @@ class Pipeline {
   void refuseLoopClosure(const MatchResult& match, const LoopClosure& msg);
   void clearGraph();
   void runFullPass();
+  OptimizeResult finish(unsigned iterations);
+  // Makes `graph` (same nodes and constraints as now, other poses) the optimiser's graph.
+  void replaceGraph(const toro::PoseGraph& graph);
 
   PipelineOptions options_;
   WarningSink warn_;
