@@ -3,7 +3,8 @@
 # the exact command noted above the tables).  Arguments are passed to bench_toro (see the comment at
 # the top of bench/bench_toro.cpp), e.g. `bash bench/run_bench.sh --only sphere2500 --no-synthetic`.
 #
-# Environment: TORO_BUILD_DIR (default build), TORO_BENCH_OUT (default bench/results.md).
+# Environment: TORO_BUILD_DIR (default build), TORO_BENCH_OUT (default bench/results.md),
+# TORO_BENCH_E2E (default 1; 0 skips the end-to-end toro_optimize timing of the target datasets).
 set -euo pipefail
 
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -11,6 +12,9 @@ BUILD_DIR="${TORO_BUILD_DIR:-build}"
 [[ "${BUILD_DIR}" = /* ]] || BUILD_DIR="${REPO_ROOT}/${BUILD_DIR}"
 OUT="${TORO_BENCH_OUT:-${REPO_ROOT}/bench/results.md}"
 BENCH="${BUILD_DIR}/devel/lib/toro_ros/bench_toro"
+OPTIMIZE="${BUILD_DIR}/devel/lib/toro_ros/toro_optimize"
+DATASETS="$(cd "${REPO_ROOT}/.." && pwd)/shared/datasets"
+E2E_RUNS=5
 
 # The arguments as one would type them (quoted only where the shell needs it).
 quotedArgs() {
@@ -20,7 +24,31 @@ quotedArgs() {
   done
 }
 
-TORO_BUILD_TARGETS=bench_toro bash "${REPO_ROOT}/scripts/build.sh" </dev/null >&2
+# The whole toro_optimize process (start-up, read, setup, 100 iterations, the before/after metrics
+# of its summary), as the original TORO program was timed: median wall and CPU over E2E_RUNS runs.
+endToEndTable() {
+  local file wall_list cpu_list t real user sys
+  echo "| command | wall (s), median [min, max] of ${E2E_RUNS} | CPU user+sys (s), median |"
+  echo "|---|---:|---:|"
+  for file in sphere2500.g2o parking-garage.g2o; do
+    [[ -f "${DATASETS}/${file}" ]] || continue
+    wall_list=() cpu_list=()
+    for ((run = 0; run < E2E_RUNS; ++run)); do
+      t="$( { TIMEFORMAT='%R %U %S'; time "${OPTIMIZE}" -q -i 100 "${DATASETS}/${file}" >/dev/null </dev/null; } 2>&1)"
+      read -r real user sys <<<"${t}"
+      wall_list+=("${real}")
+      cpu_list+=("$(awk -v u="${user}" -v s="${sys}" 'BEGIN {printf "%.3f", u + s}')")
+    done
+    echo "| \`${OPTIMIZE#"${REPO_ROOT}"/} -q -i 100 ../shared/datasets/${file}\` | $(stats "${wall_list[@]}") | $(stats "${cpu_list[@]}" | cut -d' ' -f1) |"
+  done
+}
+
+# "median [min, max]" of the arguments.
+stats() {
+  printf '%s\n' "$@" | sort -g | awk '{v[NR] = $1} END {m = (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2; printf "%.3f [%.3f, %.3f]", m, v[1], v[NR]}'
+}
+
+TORO_BUILD_TARGETS="bench_toro toro_optimize" bash "${REPO_ROOT}/scripts/build.sh" </dev/null >&2
 
 cpu_model="$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ *//')"
 memory="$(awk '/MemTotal/ {printf "%.1f GiB", $2 / 1048576}' /proc/meminfo)"
@@ -35,6 +63,8 @@ trap 'rm -f "${tables}"' EXIT
 start=$(date +%s)
 "${BENCH}" "$@" >"${tables}" </dev/null
 elapsed=$(($(date +%s) - start))
+e2e=""
+if [[ "${TORO_BENCH_E2E:-1}" != 0 ]]; then e2e="$(endToEndTable)"; fi
 
 {
   echo "# toro_ros benchmark results"
@@ -66,5 +96,11 @@ elapsed=$(($(date +%s) - start))
   echo "measured with the 2D definitions. The original-TORO figures come from issue 2."
   echo
   cat "${tables}"
+  if [[ -n "${e2e}" ]]; then
+    echo
+    echo "## End to end: the toro_optimize process (start-up, read, setup, 100 iterations, summary metrics)"
+    echo
+    echo "${e2e}"
+  fi
 } >"${OUT}"
 echo "run_bench.sh: wrote ${OUT}" >&2
