@@ -22,6 +22,8 @@ TORO_APT_PACKAGES=(
   libdiagnostic-updater-dev
   # maths, benchmarks, plots
   libsuitesparse-dev libbenchmark-dev python3-matplotlib python3-numpy
+  # fuzzing (scripts/fuzz.sh): clang and its libFuzzer/sanitizer runtimes (only recommended by clang)
+  clang libclang-rt-14-dev
 )
 
 missingPackages() {
