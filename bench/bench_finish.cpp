@@ -40,8 +40,8 @@ struct Case {
   const char* file;
   OptimizeMode mode;
   InitialGuess guess;
-  double reference;  // REFERENCE.md (B)
-  double tolerance;  // relative
+  double reference;       // REFERENCE.md (B)
+  double tolerance;       // relative
   double target_seconds;  // 0: none
   LinearSolverType solver = LinearSolverType::kCholmodSupernodal;
 };
@@ -68,7 +68,8 @@ Outcome runCase(const std::string& dir, const Case& c, int runs) {
     const OptimizeReport report = optimizeGraph(g, options);
     wall.push_back(std::chrono::duration<double>(Clock::now() - start).count());
     cpu.push_back(cpuSeconds() - cpu_start);
-    factorization.push_back(report.finish.iterations ? report.finish.factorization_seconds / report.finish.iterations : 0.0);
+    factorization.push_back(
+        report.finish.iterations ? report.finish.factorization_seconds / report.finish.iterations : 0.0);
     out.chi2 = report.final_chi2;
     out.toro_iterations = report.toro_iterations;
     out.finish_iterations = report.finish.iterations;
@@ -85,10 +86,10 @@ void printRow(const Case& c, const Outcome& o) {
   const double rel = std::abs(o.chi2 - c.reference) / c.reference;
   const bool ok_value = rel <= c.tolerance;
   const bool ok_time = c.target_seconds <= 0.0 || o.wall <= c.target_seconds;
-  std::printf("| %s | %s | %s | %s | %zu | %zu | %.3f | %.3f | %.4f | %.4f | %.10g | %.1e %s | %s |\n", c.file,
-              optimizeModeName(c.mode), guessName(c.guess), linearSolverName(c.solver), o.toro_iterations,
-              o.finish_iterations, o.wall, o.cpu, o.factorization, o.read, o.chi2, rel, ok_value ? "ok" : "MISSED",
-              c.target_seconds > 0 ? (ok_time ? "ok" : "over") : "-");
+  std::printf("| %s | %s | %s | %s | %zu | %zu | %.3f | %.3f | %.4f | %.4f | %.10g | %.1e %s | %s |\n",
+              c.file, optimizeModeName(c.mode), guessName(c.guess), linearSolverName(c.solver),
+              o.toro_iterations, o.finish_iterations, o.wall, o.cpu, o.factorization, o.read, o.chi2, rel,
+              ok_value ? "ok" : "MISSED", c.target_seconds > 0 ? (ok_time ? "ok" : "over") : "-");
   std::fflush(stdout);
 }
 
@@ -100,9 +101,12 @@ int main(int argc, char** argv) {
   std::string only;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
-    if (key == "--datasets") dir = argv[i + 1];
-    else if (key == "--runs") runs = std::max(1, std::atoi(argv[i + 1]));
-    else if (key == "--only") only = argv[i + 1];
+    if (key == "--datasets")
+      dir = argv[i + 1];
+    else if (key == "--runs")
+      runs = std::max(1, std::atoi(argv[i + 1]));
+    else if (key == "--only")
+      only = argv[i + 1];
     else {
       std::fprintf(stderr, "unknown option %s\n", key.c_str());
       return 2;
@@ -129,7 +133,9 @@ int main(int argc, char** argv) {
   }
   std::printf("runs per case: %d (median); OPENBLAS_NUM_THREADS=%s\n\n", runs,
               std::getenv("OPENBLAS_NUM_THREADS") ? std::getenv("OPENBLAS_NUM_THREADS") : "(unset)");
-  std::printf("| file | mode | start | linear solver | TORO it. | finish it. | wall s | CPU s | factorise+solve s/it. | read s | final chi2 | rel. diff | time target |\n");
+  std::printf(
+      "| file | mode | start | linear solver | TORO it. | finish it. | wall s | CPU s | factorise+solve "
+      "s/it. | read s | final chi2 | rel. diff | time target |\n");
   std::printf("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n");
   for (const Case& c : cases) {
     if (!only.empty() && only != c.file) continue;

@@ -153,7 +153,8 @@ FinishProblem<Model>::FinishProblem(const PoseGraph& graph, LinearSolverType sol
     Matrix6 information = c.information;
     // addConstraint keeps non-positive-definite matrices out, but a matrix at the edge of
     // definiteness can still fail a factorisation; the repair is the readers' one.
-    if (Eigen::LLT<Matrix6>(information).info() != Eigen::Success && repairInformation(information)) ++repaired_;
+    if (Eigen::LLT<Matrix6>(information).info() != Eigen::Success && repairInformation(information))
+      ++repaired_;
     e.information = Model::informationOf(information);
     edges_.push_back(e);
   }

@@ -59,9 +59,12 @@ std::string runToroPhase(TreeOptimizer& toro, const OptimizeOptions& options, do
 
 const char* optimizeModeName(OptimizeMode mode) {
   switch (mode) {
-    case OptimizeMode::kToro: return "toro";
-    case OptimizeMode::kFinish: return "finish";
-    case OptimizeMode::kToroThenFinish: return "toro+finish";
+    case OptimizeMode::kToro:
+      return "toro";
+    case OptimizeMode::kFinish:
+      return "finish";
+    case OptimizeMode::kToroThenFinish:
+      return "toro+finish";
   }
   return "unknown";
 }
@@ -78,9 +81,12 @@ bool parseOptimizeMode(const std::string& text, OptimizeMode* mode) {
 
 const char* optimizePhaseName(OptimizePhase phase) {
   switch (phase) {
-    case OptimizePhase::kStart: return "start";
-    case OptimizePhase::kToro: return "toro";
-    case OptimizePhase::kFinish: return "finish";
+    case OptimizePhase::kStart:
+      return "start";
+    case OptimizePhase::kToro:
+      return "toro";
+    case OptimizePhase::kFinish:
+      return "finish";
   }
   return "unknown";
 }
@@ -88,7 +94,8 @@ const char* optimizePhaseName(OptimizePhase phase) {
 std::string OptimizeOptions::validate() const {
   std::string out;
   auto add = [&out](const std::string& what) { out += (out.empty() ? "" : "; ") + what; };
-  if (toro_min_iterations > toro_max_iterations) add("toro_min_iterations must not exceed toro_max_iterations");
+  if (toro_min_iterations > toro_max_iterations)
+    add("toro_min_iterations must not exceed toro_max_iterations");
   if (!(switch_relative_decrease >= 0.0) || !std::isfinite(switch_relative_decrease)) {
     add("switch_relative_decrease must be finite and >= 0");
   }
@@ -99,7 +106,8 @@ std::string OptimizeOptions::validate() const {
   return out;
 }
 
-OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options, const OptimizeCallback& callback) {
+OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options,
+                             const OptimizeCallback& callback) {
   const std::string problem = options.validate();
   if (!problem.empty()) throw std::invalid_argument("OptimizeOptions: " + problem);
   // Constructed first so that an unavailable linear solver is reported before any work.
@@ -109,7 +117,8 @@ OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options, c
   const Clock::time_point start = Clock::now();
   const Recorder record{&report, &callback, start};
 
-  const bool need_tree = options.mode != OptimizeMode::kFinish || options.initial_guess == InitialGuess::kChainOnTree;
+  const bool need_tree =
+      options.mode != OptimizeMode::kFinish || options.initial_guess == InitialGuess::kChainOnTree;
   if (need_tree && graph.numNodes() > 0) {
     TreeOptimizer toro(options.toro);
     toro.setGraph(graph, options.initial_guess);

@@ -71,8 +71,8 @@ double seSyncTerm2D(const Pose3& xi, const Pose3& xj, const Constraint& c) {
   const double kappa = planar(2, 2);
   const Matrix2 ri = planarRotation(yawOf(xi));
   const Matrix2 rot_residual = planarRotation(yawOf(xj)) - ri * planarRotation(yawOf(c.measurement));
-  const Vector2 t_residual = (xj.translation() - xi.translation()).head<2>() -
-                             ri * c.measurement.translation().head<2>();
+  const Vector2 t_residual =
+      (xj.translation() - xi.translation()).head<2>() - ri * c.measurement.translation().head<2>();
   return kappa * rot_residual.squaredNorm() + tau * t_residual.squaredNorm();
 }
 

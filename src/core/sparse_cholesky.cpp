@@ -19,9 +19,12 @@ bool cholmodAvailable() {
 
 const char* linearSolverName(LinearSolverType type) {
   switch (type) {
-    case LinearSolverType::kCholmodSupernodal: return "cholmod-supernodal";
-    case LinearSolverType::kCholmodSimplicial: return "cholmod-simplicial";
-    case LinearSolverType::kSimplicialLDLT: return "eigen-ldlt";
+    case LinearSolverType::kCholmodSupernodal:
+      return "cholmod-supernodal";
+    case LinearSolverType::kCholmodSimplicial:
+      return "cholmod-simplicial";
+    case LinearSolverType::kSimplicialLDLT:
+      return "eigen-ldlt";
   }
   return "unknown";
 }

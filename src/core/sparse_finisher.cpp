@@ -124,7 +124,8 @@ FinishReport runFinish(PoseGraph& graph, const FinishOptions& options, const Fin
       gradient = 2.0 * problem.b().template lpNorm<Eigen::Infinity>();
       lambda *= shrinkFactor(it.gain_ratio);
       nu = 2.0;
-      if (relative_decrease < options.relative_decrease_tolerance) report.stop = FinishStop::kRelativeDecrease;
+      if (relative_decrease < options.relative_decrease_tolerance)
+        report.stop = FinishStop::kRelativeDecrease;
       if (gradient < options.gradient_tolerance) report.stop = FinishStop::kGradient;
     } else {
       lambda *= nu;
@@ -164,13 +165,20 @@ std::string FinishOptions::validate() const {
 
 const char* finishStopName(FinishStop stop) {
   switch (stop) {
-    case FinishStop::kNotRun: return "not run";
-    case FinishStop::kRelativeDecrease: return "relative decrease below tolerance";
-    case FinishStop::kGradient: return "gradient below tolerance";
-    case FinishStop::kStep: return "step below tolerance";
-    case FinishStop::kMaxIterations: return "iteration limit";
-    case FinishStop::kLambdaTooLarge: return "no further decrease (damping limit)";
-    case FinishStop::kNoConstraints: return "nothing to optimise";
+    case FinishStop::kNotRun:
+      return "not run";
+    case FinishStop::kRelativeDecrease:
+      return "relative decrease below tolerance";
+    case FinishStop::kGradient:
+      return "gradient below tolerance";
+    case FinishStop::kStep:
+      return "step below tolerance";
+    case FinishStop::kMaxIterations:
+      return "iteration limit";
+    case FinishStop::kLambdaTooLarge:
+      return "no further decrease (damping limit)";
+    case FinishStop::kNoConstraints:
+      return "nothing to optimise";
   }
   return "unknown";
 }

@@ -225,8 +225,8 @@ void printLine(const char* phase, std::size_t iteration, double seconds, const M
 
 // The finish's state lives inside the solver, so its lines carry chi2 and the damping only.
 void printFinishLine(const toro::OptimizeIteration& it, double seconds) {
-  std::printf("%-6s %6zu %10.6f %14.8g %14s %13s %13s  lambda %.3g%s\n", "finish", it.iteration, seconds, it.chi2,
-              "-", "-", "-", it.lambda, it.accepted ? "" : " (step rejected)");
+  std::printf("%-6s %6zu %10.6f %14.8g %14s %13s %13s  lambda %.3g%s\n", "finish", it.iteration, seconds,
+              it.chi2, "-", "-", "-", it.lambda, it.accepted ? "" : " (step rejected)");
   std::fflush(stdout);
 }
 
@@ -246,7 +246,8 @@ toro::OptimizeOptions optimizeOptions(const CliOptions& o) {
   if (!invalid.empty()) throw UsageError(invalid);
   if (o.mode != toro::OptimizeMode::kToro && o.linear_solver != toro::LinearSolverType::kSimplicialLDLT &&
       !toro::cholmodAvailable()) {
-    throw UsageError(std::string("--linear-solver ") + toro::linearSolverName(o.linear_solver) + " is not built in");
+    throw UsageError(std::string("--linear-solver ") + toro::linearSolverName(o.linear_solver) +
+                     " is not built in");
   }
   return options;
 }
@@ -265,7 +266,8 @@ void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measu
   std::printf("summary: %s, %zu nodes, %zu constraints, %zu iterations, initial guess %s\n", o.input.c_str(),
               graph.numNodes(), graph.numConstraints(), log.iterations, o.chain_guess ? "chain" : "file");
   std::printf("  mode    %s: %zu tree iterations", toro::optimizeModeName(o.mode), result.toro_iterations);
-  if (o.mode == toro::OptimizeMode::kToroThenFinish) std::printf(" (switch: %s)", result.switch_reason.c_str());
+  if (o.mode == toro::OptimizeMode::kToroThenFinish)
+    std::printf(" (switch: %s)", result.switch_reason.c_str());
   if (o.mode != toro::OptimizeMode::kToro) {
     std::printf(", %zu finish iterations (stop: %s, linear solver %s)", result.finish.iterations,
                 toro::finishStopName(result.finish.stop), toro::linearSolverName(o.linear_solver));

@@ -27,7 +27,8 @@ Matrix6 numericJacobianSE3(const Pose3& xi, const Pose3& xj, const Pose3& z, int
     Vector6 d = Vector6::Zero();
     d[k] = h;
     const Vector6 plus = which == 0 ? errorSE3(retractSE3(xi, d), xj, z) : errorSE3(xi, retractSE3(xj, d), z);
-    const Vector6 minus = which == 0 ? errorSE3(retractSE3(xi, -d), xj, z) : errorSE3(xi, retractSE3(xj, -d), z);
+    const Vector6 minus =
+        which == 0 ? errorSE3(retractSE3(xi, -d), xj, z) : errorSE3(xi, retractSE3(xj, -d), z);
     j.col(k) = (plus - minus) / (2 * h);
   }
   return j;

@@ -23,14 +23,16 @@ PoseGraph noisyLoop(unsigned seed, int n = 40) {
   std::vector<Pose3> truth;
   for (int i = 0; i < n; ++i) {
     const double a = 2 * M_PI * i / n;
-    truth.push_back(Pose3::fromRollPitchYaw(8 * std::cos(a), 8 * std::sin(a), 0.5 * std::sin(2 * a), 0, 0.1, a));
+    truth.push_back(
+        Pose3::fromRollPitchYaw(8 * std::cos(a), 8 * std::sin(a), 0.5 * std::sin(2 * a), 0, 0.1, a));
   }
   PoseGraph g;
   for (int i = 0; i < n; ++i) g.addNode(i, truth[i] * jitter(0.2, 0.5));
   Matrix6 info = Matrix6::Identity();
   info.bottomRightCorner<3, 3>() *= 400.0;
   for (int i = 0; i < n; ++i) {
-    g.addConstraint(Constraint{i, (i + 1) % n, relativePose(truth[i], truth[(i + 1) % n]) * jitter(0.01, 0.05), info});
+    g.addConstraint(
+        Constraint{i, (i + 1) % n, relativePose(truth[i], truth[(i + 1) % n]) * jitter(0.01, 0.05), info});
   }
   for (int i = 0; i + 10 < n; i += 5) {
     g.addConstraint(Constraint{i, i + 10, relativePose(truth[i], truth[i + 10]) * jitter(0.01, 0.05), info});

@@ -15,7 +15,9 @@ Matrix6 diagonalInformation() {
   return d.asDiagonal();
 }
 
-Pose3 yawPose(double x, double y, double z, double yaw) { return Pose3::fromRollPitchYaw(x, y, z, 0, 0, yaw); }
+Pose3 yawPose(double x, double y, double z, double yaw) {
+  return Pose3::fromRollPitchYaw(x, y, z, 0, 0, yaw);
+}
 
 // A 2D constraint lifted the way the readers lift it: z info = mean(xx, yy), roll/pitch/yaw info
 // = 4 * theta-theta (quaternion-vector units), x-yaw / y-yaw cross = 2 * cross.
@@ -31,7 +33,8 @@ Matrix6 liftPlanarInformation(const Eigen::Matrix3d& p) {
 
 Pose3 randomPose(std::mt19937& rng, double rotation_scale) {
   std::normal_distribution<double> n(0.0, 1.0);
-  return Pose3::fromAngleAxis(rotation_scale * Vector3(n(rng), n(rng), n(rng)), Vector3(n(rng), n(rng), n(rng)));
+  return Pose3::fromAngleAxis(rotation_scale * Vector3(n(rng), n(rng), n(rng)),
+                              Vector3(n(rng), n(rng), n(rng)));
 }
 
 // A random SPD 6x6 information matrix.
@@ -63,8 +66,8 @@ TEST(Metrics, HandComputedOneConstraint3D) {
   PoseGraph g;
   g.addNode(0, Pose3());
   g.addNode(1, Pose3(Quaternion(Eigen::AngleAxisd(a, Vector3::UnitZ())), t));
-  g.addConstraint(Constraint{0, 1, Pose3(Quaternion(Eigen::AngleAxisd(b, Vector3::UnitZ())), tz),
-                             diagonalInformation()});
+  g.addConstraint(
+      Constraint{0, 1, Pose3(Quaternion(Eigen::AngleAxisd(b, Vector3::UnitZ())), tz), diagonalInformation()});
   // D = Z^-1 X1 = (Rz(a - b), Rz(-b) (t - tz)); qvec = (0, 0, sin((a - b) / 2)).
   const Vector3 et = Eigen::AngleAxisd(-b, Vector3::UnitZ()) * (t - tz);
   const double eq = std::sin((a - b) / 2);
@@ -72,7 +75,8 @@ TEST(Metrics, HandComputedOneConstraint3D) {
   EXPECT_NEAR(g2oChi2(g), expected, 1e-12);
   EXPECT_NEAR(constraintChi2(g, 0), expected, 1e-12);
 
-  // SE-Sync: tau = 3 / (1 + 1/2 + 1/3), kappa = 3 / (2 (1/4 + 1/5 + 1/6)), |Rz(a) - Rz(b)|_F^2 = 4 (1 - cos(a - b)).
+  // SE-Sync: tau = 3 / (1 + 1/2 + 1/3), kappa = 3 / (2 (1/4 + 1/5 + 1/6)), |Rz(a) - Rz(b)|_F^2 = 4 (1 - cos(a
+  // - b)).
   const double tau = 3.0 / (1.0 + 0.5 + 1.0 / 3.0);
   const double kappa = 3.0 / (2.0 * (0.25 + 0.2 + 1.0 / 6.0));
   EXPECT_NEAR(seSyncObjective(g), kappa * 4 * (1 - std::cos(a - b)) + tau * (t - tz).squaredNorm(), 1e-12);

@@ -36,12 +36,14 @@ PoseGraph noisyGraph3D(unsigned seed, int n = 30) {
   std::vector<Pose3> truth;
   for (int i = 0; i < n; ++i) {
     const double a = 2 * M_PI * i / n;
-    truth.push_back(Pose3::fromRollPitchYaw(5 * std::cos(a), 5 * std::sin(a), 0.3 * std::sin(3 * a), 0.1, -0.2, a));
+    truth.push_back(
+        Pose3::fromRollPitchYaw(5 * std::cos(a), 5 * std::sin(a), 0.3 * std::sin(3 * a), 0.1, -0.2, a));
   }
   PoseGraph g;
   for (int i = 0; i < n; ++i) g.addNode(i, truth[i] * randomPose(rng, 0.1, 0.3));
   auto add = [&](int a, int b) {
-    g.addConstraint(Constraint{a, b, relativePose(truth[a], truth[b]) * randomPose(rng, 0.05, 0.1), randomInformation(rng)});
+    g.addConstraint(Constraint{a, b, relativePose(truth[a], truth[b]) * randomPose(rng, 0.05, 0.1),
+                               randomInformation(rng)});
   };
   for (int i = 0; i < n; ++i) add(i, (i + 1) % n);
   for (int i = 0; i + 5 < n; i += 3) add(i, i + 5);
@@ -62,9 +64,11 @@ PoseGraph noisyGraph2D(unsigned seed, int n = 30) {
   info(0, 5) = info(5, 0) = 2.0;
   PoseGraph g;
   g.setDimension(GraphDimension::k2D);
-  for (int i = 0; i < n; ++i) g.addNode(i, truth[i] * planar(0.3 * noise(rng), 0.3 * noise(rng), 0.2 * noise(rng)));
+  for (int i = 0; i < n; ++i)
+    g.addNode(i, truth[i] * planar(0.3 * noise(rng), 0.3 * noise(rng), 0.2 * noise(rng)));
   auto add = [&](int a, int b) {
-    const Pose3 z = relativePose(truth[a], truth[b]) * planar(0.1 * noise(rng), 0.1 * noise(rng), 0.05 * noise(rng));
+    const Pose3 z =
+        relativePose(truth[a], truth[b]) * planar(0.1 * noise(rng), 0.1 * noise(rng), 0.05 * noise(rng));
     g.addConstraint(Constraint{a, b, z, info});
   };
   for (int i = 0; i < n; ++i) add(i, (i + 1) % n);
@@ -109,7 +113,9 @@ TEST(SparseFinisher, ReachesTheMinimumOfASmall3DGraph) {
   EXPECT_LT(r.final_chi2, 0.01 * before);
   EXPECT_NEAR(r.final_chi2, g2oChi2(g), 1e-12 * r.final_chi2);  // the cost is exactly g2o chi2
   EXPECT_EQ(r.held_nodes, 1u);
-  EXPECT_LT((root_before.inverse() * g.pose(0)).angle() + (root_before.translation() - g.pose(0).translation()).norm(), 1e-15);
+  EXPECT_LT((root_before.inverse() * g.pose(0)).angle() +
+                (root_before.translation() - g.pose(0).translation()).norm(),
+            1e-15);
   EXPECT_LT(numericGradient3D(g, 0), 1e-6);
 
   // A second run from a strongly perturbed start ends at the same chi2 (to 1e-9 relative).
@@ -120,13 +126,15 @@ TEST(SparseFinisher, ReachesTheMinimumOfASmall3DGraph) {
   }
   const FinishReport r2 = LevenbergMarquardt(tightOptions()).optimize(other);
   EXPECT_NEAR(r2.final_chi2, r.final_chi2, 1e-9 * r.final_chi2);
-  for (const Node& n : g.nodes()) EXPECT_LT((n.pose.translation() - other.pose(n.id).translation()).norm(), 1e-5);
+  for (const Node& n : g.nodes())
+    EXPECT_LT((n.pose.translation() - other.pose(n.id).translation()).norm(), 1e-5);
 }
 
 TEST(SparseFinisher, ReportsEveryIterationAndChi2DecreasesMonotonically) {
   PoseGraph g = noisyGraph3D(32);
   std::vector<FinishIteration> seen;
-  const FinishReport r = LevenbergMarquardt().optimize(g, [&](const FinishIteration& it) { seen.push_back(it); });
+  const FinishReport r =
+      LevenbergMarquardt().optimize(g, [&](const FinishIteration& it) { seen.push_back(it); });
   ASSERT_EQ(seen.size(), r.history.size());
   ASSERT_EQ(seen.size(), r.iterations);
   ASSERT_FALSE(seen.empty());
@@ -141,7 +149,8 @@ TEST(SparseFinisher, ReportsEveryIterationAndChi2DecreasesMonotonically) {
     previous = seen[k].chi2;
   }
   EXPECT_EQ(previous, r.final_chi2);
-  EXPECT_TRUE(r.stop == FinishStop::kRelativeDecrease || r.stop == FinishStop::kGradient || r.stop == FinishStop::kStep)
+  EXPECT_TRUE(r.stop == FinishStop::kRelativeDecrease || r.stop == FinishStop::kGradient ||
+              r.stop == FinishStop::kStep)
       << finishStopName(r.stop);
 }
 
@@ -162,7 +171,8 @@ TEST(SparseFinisher, PlanarGraphMinimisesThe2DChi2AndStaysInThePlane) {
     if (node.id == 0) continue;
     const Vector3 rpy = g.pose(node.id).rollPitchYaw();
     const Vector3 t = g.pose(node.id).translation();
-    other.setPose(node.id, Pose3::fromRollPitchYaw(t.x() + n(rng), t.y() + n(rng), 0, 0, 0, rpy.z() + 2 * M_PI + n(rng)));
+    other.setPose(node.id, Pose3::fromRollPitchYaw(t.x() + n(rng), t.y() + n(rng), 0, 0, 0,
+                                                   rpy.z() + 2 * M_PI + n(rng)));
   }
   const FinishReport r2 = LevenbergMarquardt(tightOptions()).optimize(other);
   EXPECT_NEAR(r2.final_chi2, r.final_chi2, 1e-9 * r.final_chi2);

@@ -70,7 +70,7 @@ struct OptimizeReport {
   std::size_t toro_iterations = 0;
   std::string switch_reason;  // why the TORO phase ended (empty if it did not run)
   double toro_seconds = 0.0;
-  FinishReport finish;        // stop == kNotRun if the finish did not run
+  FinishReport finish;  // stop == kNotRun if the finish did not run
   double seconds = 0.0;
   std::vector<OptimizeIteration> history;  // kStart line first
 };

@@ -14,7 +14,8 @@ namespace toro {
 double g2oChi2(const PoseGraph& graph);
 
 // (A) SE-Sync objective: sum kappa ||R_j - R_i R_z||_F^2 + tau ||t_j - t_i - R_i t_z||^2 with
-// 3D: tau = 3 / tr(Omega_t^-1), kappa = 3 / (2 tr(Omega_R^-1)); 2D: tau = 2 / tr(Omega_t^-1), kappa = Omega_thth.
+// 3D: tau = 3 / tr(Omega_t^-1), kappa = 3 / (2 tr(Omega_R^-1)); 2D: tau = 2 / tr(Omega_t^-1), kappa =
+// Omega_thth.
 double seSyncObjective(const PoseGraph& graph);
 
 // (C) TORO's unweighted error: sum over constraints of (rotation angle of the residual)^2 +

@@ -40,7 +40,11 @@ struct FinishOptions {
   // Stop when the largest entry of a step (metres, radians) is below this.
   double step_tolerance = 1e-12;
   // Initial damping lambda = initial_lambda_factor * (largest diagonal entry of J^T Omega J).
-  double initial_lambda_factor = 1e-8;
+  // Small, so the first steps are nearly Gauss-Newton: measured on parking-garage.g2o, 1e-8
+  // damps its weakly constrained directions into 11 slow iterations, 1e-12 needs 4; sphere2500,
+  // MIT, intel, ais2klinik and sphere_bignoise need the same or fewer (bench/finish_results.md).
+  // Bad steps raise lambda anyway (gain ratio <= 0: lambda *= 2, 4, 8, ...).
+  double initial_lambda_factor = 1e-12;
   // Give up (reason kLambdaTooLarge) when lambda exceeds this multiple of the largest diagonal.
   double max_lambda_factor = 1e10;
   LinearSolverType linear_solver = LinearSolverType::kCholmodSupernodal;
@@ -55,20 +59,20 @@ enum class FinishStop {
   kGradient,          // converged: gradient ~ 0
   kStep,              // converged: steps ~ 0
   kMaxIterations,
-  kLambdaTooLarge,    // no step lowers chi2 any more (stalled, e.g. at the limit of precision)
+  kLambdaTooLarge,  // no step lowers chi2 any more (stalled, e.g. at the limit of precision)
   kNoConstraints,
 };
 const char* finishStopName(FinishStop stop);
 
 struct FinishIteration {
-  std::size_t iteration = 0;  // 1-based
-  double chi2 = 0.0;          // after this iteration (unchanged if the step was rejected)
-  double lambda = 0.0;        // damping used for this iteration's step
-  double gain_ratio = 0.0;    // actual / predicted decrease
-  double step_norm = 0.0;     // largest entry of the step
-  double gradient_norm = 0.0; // largest gradient entry before the step
+  std::size_t iteration = 0;   // 1-based
+  double chi2 = 0.0;           // after this iteration (unchanged if the step was rejected)
+  double lambda = 0.0;         // damping used for this iteration's step
+  double gain_ratio = 0.0;     // actual / predicted decrease
+  double step_norm = 0.0;      // largest entry of the step
+  double gradient_norm = 0.0;  // largest gradient entry before the step
   bool accepted = false;
-  double seconds = 0.0;       // wall time since optimize() started
+  double seconds = 0.0;  // wall time since optimize() started
 };
 
 struct FinishReport {
@@ -79,7 +83,7 @@ struct FinishReport {
   std::size_t held_nodes = 0;            // gauge nodes (see the header comment)
   std::size_t repaired_information = 0;  // constraints whose information was not positive definite
   double seconds = 0.0;
-  double factorization_seconds = 0.0;    // of which: numeric factorisations and solves
+  double factorization_seconds = 0.0;  // of which: numeric factorisations and solves
   std::vector<FinishIteration> history;
 };
 
