@@ -154,7 +154,11 @@ void addVertices(const detail::ParsedLines& parsed, const std::string& source, P
           source, v.line,
           "duplicate VERTEX id " + std::to_string(v.id) + " (first on line " + std::to_string(first) + ")");
     }
-    graph.addNode(v.id, v.pose);
+    try {
+      graph.addNode(v.id, v.pose);
+    } catch (const GraphError& error) {
+      throw ParseError(source, v.line, error.what());
+    }
   }
 }
 

@@ -146,8 +146,13 @@ Vector3 planarPose(const Pose3& pose) {
 
 Pose3 poseFromTranslationQuaternion(const LineFields& fields, const double* v,
                                     std::size_t first_quaternion_field) {
-  const Quaternion q(v[6], v[3], v[4], v[5]);  // (w, x, y, z) from x y z qx qy qz qw
-  const double norm2 = q.squaredNorm();
+  Quaternion q(v[6], v[3], v[4], v[5]);  // (w, x, y, z) from x y z qx qy qz qw
+  double norm2 = q.squaredNorm();
+  if (std::isinf(norm2)) {
+    // Huge components: scale down first so the norm does not overflow.
+    q.coeffs() /= q.coeffs().cwiseAbs().maxCoeff();
+    norm2 = q.squaredNorm();
+  }
   if (!(norm2 > 1e-20)) {
     fields.fail("fields " + std::to_string(first_quaternion_field) + "-" +
                 std::to_string(first_quaternion_field + 3) + " (qx qy qz qw): the quaternion is zero");

@@ -44,6 +44,8 @@ bool repairInformation(Matrix6& information) {
   Matrix6 repaired = eigen.eigenvectors() * clamped.asDiagonal() * eigen.eigenvectors().transpose();
   // Rounding in the product leaves tiny asymmetries; mirror so the result is exactly symmetric.
   repaired = (0.5 * (repaired + repaired.transpose())).eval();
+  // Extreme magnitudes can overflow in the reconstruction; then there is nothing sound to return.
+  if (!repaired.allFinite() || Eigen::LLT<Matrix6>(repaired).info() != Eigen::Success) return false;
   information = repaired;
   return true;
 }
