@@ -67,6 +67,9 @@ double secondsSince(Clock::time_point start) {
 // Nielsen's damping update after an accepted step with gain ratio rho (Madsen, Nielsen,
 // Tingleff, "Methods for non-linear least squares problems", 2004, eq. 3.16): shrink lambda
 // by up to 3 when the quadratic model predicted the decrease well.
+// The quadratic model matched the actual decrease closely.
+bool gainRatioIsReliable(double rho) { return rho > 0.9 && rho < 1.1; }
+
 double shrinkFactor(double rho) {
   const double t = 2.0 * rho - 1.0;
   return std::max(1.0 / 3.0, 1.0 - t * t * t);
@@ -124,8 +127,16 @@ FinishReport runFinish(PoseGraph& graph, const FinishOptions& options, const Fin
       gradient = 2.0 * problem.b().template lpNorm<Eigen::Infinity>();
       lambda *= shrinkFactor(it.gain_ratio);
       nu = 2.0;
-      if (relative_decrease < options.relative_decrease_tolerance)
+      if (relative_decrease < options.relative_decrease_tolerance) {
         report.stop = FinishStop::kRelativeDecrease;
+      } else if (gainRatioIsReliable(it.gain_ratio)) {
+        // Quadratic convergence: when the model was right about this step, ask it about the
+        // next one before paying for its factorisation (saves the last, confirming iteration).
+        const double next = problem.estimatedNextDecrease();
+        if (next >= 0.0 && next < options.relative_decrease_tolerance * chi2) {
+          report.stop = FinishStop::kPredictedDecrease;
+        }
+      }
       if (gradient < options.gradient_tolerance) report.stop = FinishStop::kGradient;
     } else {
       lambda *= nu;
@@ -169,6 +180,8 @@ const char* finishStopName(FinishStop stop) {
       return "not run";
     case FinishStop::kRelativeDecrease:
       return "relative decrease below tolerance";
+    case FinishStop::kPredictedDecrease:
+      return "predicted next decrease below tolerance";
     case FinishStop::kGradient:
       return "gradient below tolerance";
     case FinishStop::kStep:

@@ -149,8 +149,8 @@ TEST(SparseFinisher, ReportsEveryIterationAndChi2DecreasesMonotonically) {
     previous = seen[k].chi2;
   }
   EXPECT_EQ(previous, r.final_chi2);
-  EXPECT_TRUE(r.stop == FinishStop::kRelativeDecrease || r.stop == FinishStop::kGradient ||
-              r.stop == FinishStop::kStep)
+  EXPECT_TRUE(r.stop == FinishStop::kRelativeDecrease || r.stop == FinishStop::kPredictedDecrease ||
+              r.stop == FinishStop::kGradient || r.stop == FinishStop::kStep)
       << finishStopName(r.stop);
 }
 

@@ -33,7 +33,8 @@ const char* linearSolverName(LinearSolverType type);
 struct FinishOptions {
   // Stop after this many iterations (accepted or rejected steps).
   std::size_t max_iterations = 100;
-  // Stop when an accepted step lowers chi2 by less than this fraction of its value.
+  // Stop when an accepted step lowers chi2 by less than this fraction of its value, or when the
+  // next step is estimated to (kPredictedDecrease).
   double relative_decrease_tolerance = 1e-7;
   // Stop when the largest gradient entry |J^T Omega e|_inf is below this (chi2 per metre/radian).
   double gradient_tolerance = 1e-10;
@@ -55,9 +56,11 @@ struct FinishOptions {
 
 enum class FinishStop {
   kNotRun,
-  kRelativeDecrease,  // converged: chi2 no longer decreases noticeably
-  kGradient,          // converged: gradient ~ 0
-  kStep,              // converged: steps ~ 0
+  kRelativeDecrease,   // converged: chi2 no longer decreases noticeably
+  kPredictedDecrease,  // converged: the next step's decrease, estimated with the last
+                       // factorisation, is below relative_decrease_tolerance
+  kGradient,           // converged: gradient ~ 0
+  kStep,               // converged: steps ~ 0
   kMaxIterations,
   kLambdaTooLarge,  // no step lowers chi2 any more (stalled, e.g. at the limit of precision)
   kNoConstraints,
