@@ -262,7 +262,7 @@ std::string describeReport(const ReadReport& r) {
   std::ostringstream s;
   s << r.source << ": " << formatName(r.format) << ' ' << (r.dimension == GraphDimension::k2D ? "2D" : "3D")
     << ", " << r.lines << " lines: " << r.vertices << " vertices, " << r.edges << " edges, " << r.fixed
-    << " fixed";
+    << " fixed; " << r.vertices + r.nodes_without_vertex.size() << " nodes";
   if (r.emptyGraph()) s << "\n  empty graph (no vertex and no edge)";
   if (!r.skipped_tags.empty()) {
     s << "\n  skipped unknown tags:";
