@@ -224,8 +224,9 @@ TEST(GraphIo, EdgesWithoutVerticesAndWithoutInformation) {
   EXPECT_EQ(report.nodes_without_vertex, (std::vector<NodeId>{3, 7}));
   EXPECT_TRUE(g.pose(7).translation().isZero());
   EXPECT_TRUE(report.has_vertices);
-  EXPECT_NE(describeReport(report).find("1 vertices, 2 edges, 0 fixed; 3 nodes\n  2 nodes without a VERTEX line"),
-            std::string::npos)
+  EXPECT_NE(
+      describeReport(report).find("1 vertices, 2 edges, 0 fixed; 3 nodes\n  2 nodes without a VERTEX line"),
+      std::string::npos)
       << describeReport(report);
   EXPECT_EQ(report.edges_without_information, 2u);
   EXPECT_EQ(g.constraints()[0].information, Matrix6::Identity());
