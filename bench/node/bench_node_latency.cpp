@@ -1,0 +1,175 @@
+// Benchmark client for map_corrector_node (issue 4): publishes odometry at a fixed wall rate along
+// a circuit (every message one keyframe, so the graph grows fast) and a loop closure every second
+// to the same place one lap earlier; measures, in wall time, from publishing a loop closure to
+// receiving the first /tf map->odom that differs from the previous one (the node must run with
+// full rounds off, so map->odom changes only through loop closures: see run_node_bench.sh).
+//   bench_node_latency <keyframes> <rate_hz> <lap_keyframes> <node_pid>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <deque>
+#include <fstream>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include <ros/ros.h>
+#include <tf2_msgs/TFMessage.h>
+
+#include "toro_ros/GetStatus.h"
+#include "toro_ros/LoopClosure.h"
+#include "toro_ros/pipeline/msg_conversion.h"
+
+namespace {
+
+constexpr double kChangeThreshold = 1e-6;
+
+long rssKiB(int pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  std::string key;
+  while (in >> key) {
+    if (key == "VmRSS:") {
+      long v = 0;
+      in >> v;
+      return v;
+    }
+    in.ignore(1 << 20, '\n');
+  }
+  return -1;
+}
+
+double percentile(std::vector<double> v, double p) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  const std::size_t i = std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(p * v.size())) - (p > 0 ? 1 : 0));
+  return v[i];
+}
+
+struct LatencyProbe {
+  std::mutex mutex;  // guards everything below
+  std::deque<std::pair<ros::WallTime, std::size_t>> unanswered;  // publish time, keyframes then
+  geometry_msgs::Transform last;
+  bool have_last = false;
+  std::vector<std::pair<std::size_t, double>> latencies;  // (keyframes when sent, seconds)
+
+  void onTf(const tf2_msgs::TFMessage::ConstPtr& msg) {
+    const ros::WallTime now = ros::WallTime::now();
+    for (const auto& t : msg->transforms) {
+      if (t.header.frame_id != "map" || t.child_frame_id != "odom") continue;
+      std::lock_guard<std::mutex> lock(mutex);
+      const auto& a = t.transform;
+      // New keyframes move map->odom only by rounding (~1e-15); a loop closure by millimetres.
+      const double moved = std::abs(a.translation.x - last.translation.x) + std::abs(a.translation.y - last.translation.y) +
+                           std::abs(a.translation.z - last.translation.z) + std::abs(a.rotation.x - last.rotation.x) +
+                           std::abs(a.rotation.y - last.rotation.y) + std::abs(a.rotation.z - last.rotation.z) +
+                           std::abs(a.rotation.w - last.rotation.w);
+      const bool changed = !have_last || moved > kChangeThreshold;
+      last = a;
+      have_last = true;
+      if (changed && !unanswered.empty()) {
+        latencies.emplace_back(unanswered.front().second, (now - unanswered.front().first).toSec());
+        unanswered.pop_front();
+      }
+    }
+  }
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "bench_node_latency");
+  if (argc != 5) {
+    std::fprintf(stderr, "usage: bench_node_latency <keyframes> <rate_hz> <lap_keyframes> <node_pid>\n");
+    return 2;
+  }
+  const std::size_t total = std::stoul(argv[1]);
+  const double rate = std::stod(argv[2]);
+  const std::size_t lap = std::stoul(argv[3]);
+  const int pid = std::stoi(argv[4]);
+  ros::NodeHandle nh;
+  LatencyProbe probe;
+  ros::Publisher odom_pub = nh.advertise<nav_msgs::Odometry>("odom", 1000);
+  ros::Publisher loop_pub = nh.advertise<toro_ros::LoopClosure>("loop_closure", 100);
+  ros::Subscriber tf_sub = nh.subscribe("/tf", 1000, &LatencyProbe::onTf, &probe, ros::TransportHints().tcpNoDelay());
+  ros::AsyncSpinner spinner(1);
+  spinner.start();
+  while (ros::ok() && (odom_pub.getNumSubscribers() == 0 || loop_pub.getNumSubscribers() == 0 ||
+                       tf_sub.getNumPublishers() == 0 || !ros::service::exists("/map_corrector/get_status", false)))
+    ros::WallDuration(0.05).sleep();
+  const long rss_start = rssKiB(pid);
+
+  // Circuit of `lap` keyframes, 1 cm apart; odometry over-reads distance by 1 % and yaw by 0.2 %.
+  const double step = 0.01, turn = 2 * M_PI / static_cast<double>(lap);
+  toro::Pose3 truth, odom;
+  std::vector<toro::Pose3> truths;
+  std::vector<ros::Time> stamps;
+  truths.reserve(total);
+  stamps.reserve(total);
+  std::size_t max_queue = 0, dropped = 0, keyframes = 0;
+  ros::WallRate pace(rate);
+  for (std::size_t i = 0; i < total && ros::ok(); ++i) {
+    const ros::Time now = ros::Time::now();
+    nav_msgs::Odometry m;
+    m.header.stamp = now;
+    m.header.frame_id = "odom";
+    m.pose.pose = toro_ros::poseToMsg(odom);
+    odom_pub.publish(m);
+    truths.push_back(truth);
+    stamps.push_back(now);
+    if (i >= lap && i % static_cast<std::size_t>(rate) == 0) {
+      toro_ros::LoopClosure lc;
+      lc.header.stamp = now;
+      lc.id_from = lc.id_to = -1;
+      lc.stamp_from = stamps[i - lap];
+      lc.stamp_to = now;
+      lc.from_T_to = toro_ros::poseToMsg(toro::relativePose(truths[i - lap], truth));
+      for (int k = 0; k < 6; ++k) lc.covariance[7 * k] = 1e-4;
+      {
+        std::lock_guard<std::mutex> lock(probe.mutex);
+        probe.unanswered.emplace_back(ros::WallTime::now(), i);
+      }
+      loop_pub.publish(lc);
+    }
+    if (i % (10 * static_cast<std::size_t>(rate)) == 0) {
+      toro_ros::GetStatus s;
+      if (ros::service::call("/map_corrector/get_status", s)) {
+        max_queue = std::max<std::size_t>(max_queue, s.response.queue_length);
+        dropped = s.response.queue_dropped;
+        keyframes = s.response.keyframes;
+        std::fprintf(stderr, "sent %zu  keyframes %zu  queue %lu  loop closures %lu applied %lu refused  rss %ld KiB\n", i,
+                     keyframes, static_cast<unsigned long>(s.response.queue_length),
+                     static_cast<unsigned long>(s.response.loop_closures_applied),
+                     static_cast<unsigned long>(s.response.loop_closures_refused), rssKiB(pid));
+      }
+    }
+    truth = truth * toro::Pose3::fromRollPitchYaw(step, 0, 0, 0, 0, turn);
+    odom = odom * toro::Pose3::fromRollPitchYaw(1.01 * step, 0, 0, 0, 0, 1.002 * turn);
+    pace.sleep();
+  }
+  ros::WallDuration(2.0).sleep();  // let the last answers arrive (measurement, not synchronisation)
+  toro_ros::GetStatus s;
+  ros::service::call("/map_corrector/get_status", s);
+  const long rss_end = rssKiB(pid);
+  spinner.stop();
+  std::vector<double> all, last_quarter;
+  for (const auto& [k, l] : probe.latencies) {
+    all.push_back(l * 1e3);
+    if (k >= total * 3 / 4) last_quarter.push_back(l * 1e3);
+  }
+  std::printf("keyframes %lu, constraints %lu, loop closures sent %zu, applied %lu, refused %lu, unanswered %zu\n",
+              static_cast<unsigned long>(s.response.keyframes), static_cast<unsigned long>(s.response.constraints),
+              probe.latencies.size() + probe.unanswered.size(),
+              static_cast<unsigned long>(s.response.loop_closures_applied),
+              static_cast<unsigned long>(s.response.loop_closures_refused), probe.unanswered.size());
+  std::printf("queue: max seen %zu, at end %lu, dropped %lu\n", max_queue,
+              static_cast<unsigned long>(s.response.queue_length), static_cast<unsigned long>(s.response.queue_dropped));
+  std::printf("latency loop closure -> tf (ms), all: median %.1f  p99 %.1f  max %.1f  (n=%zu)\n", percentile(all, 0.5),
+              percentile(all, 0.99), all.empty() ? NAN : *std::max_element(all.begin(), all.end()), all.size());
+  std::printf("latency, last quarter (%zu..%zu keyframes): median %.1f  p99 %.1f  max %.1f  (n=%zu)\n", total * 3 / 4,
+              total, percentile(last_quarter, 0.5), percentile(last_quarter, 0.99),
+              last_quarter.empty() ? NAN : *std::max_element(last_quarter.begin(), last_quarter.end()),
+              last_quarter.size());
+  std::printf("node RSS: %ld KiB at start, %ld KiB at end: %.2f KiB per keyframe\n", rss_start, rss_end,
+              s.response.keyframes ? static_cast<double>(rss_end - rss_start) / s.response.keyframes : NAN);
+  return 0;
+}
