@@ -16,6 +16,7 @@
 #include <rosgraph_msgs/Clock.h>
 #include <std_srvs/Trigger.h>
 #include <tf2_msgs/TFMessage.h>
+#include <diagnostic_msgs/DiagnosticArray.h>
 #include <visualization_msgs/MarkerArray.h>
 
 #include "../pipeline/drift_scenario.h"
@@ -40,6 +41,7 @@ struct Observed {
   std::optional<nav_msgs::Path> path;
   std::optional<visualization_msgs::MarkerArray> markers;
   bool saw_delete_all = false;
+  std::optional<diagnostic_msgs::DiagnosticStatus> diagnostics;
 };
 
 class Client {
@@ -51,6 +53,7 @@ class Client {
     tf_sub_ = nh_.subscribe("/tf", 100, &Client::onTf, this);
     path_sub_ = nh_.subscribe("/map_corrector/path", 10, &Client::onPath, this);
     markers_sub_ = nh_.subscribe("/map_corrector/graph_markers", 10, &Client::onMarkers, this);
+    diagnostics_sub_ = nh_.subscribe("/diagnostics", 10, &Client::onDiagnostics, this);
     // Simulated time advances 1:1 with wall time unless odometry pushes it ahead.
     clock_thread_ = std::thread([this] {
       while (!stop_) {
@@ -135,6 +138,14 @@ class Client {
     observed.path = *msg;
     observed.cv.notify_all();
   }
+  void onDiagnostics(const diagnostic_msgs::DiagnosticArray::ConstPtr& msg) {
+    for (const auto& status : msg->status) {
+      if (status.name.find("map corrector") == std::string::npos) continue;
+      std::lock_guard<std::mutex> lock(observed.mutex);
+      observed.diagnostics = status;
+      observed.cv.notify_all();
+    }
+  }
   void onMarkers(const visualization_msgs::MarkerArray::ConstPtr& msg) {
     std::lock_guard<std::mutex> lock(observed.mutex);
     observed.markers = *msg;
@@ -145,7 +156,7 @@ class Client {
 
   ros::NodeHandle nh_;
   ros::Publisher clock_pub_, odom_pub_, loop_pub_;
-  ros::Subscriber tf_sub_, path_sub_, markers_sub_;
+  ros::Subscriber tf_sub_, path_sub_, markers_sub_, diagnostics_sub_;
   std::atomic<double> clock_sec_{99.0};
   std::atomic<double> last_published_{99.0};
   std::atomic<bool> stop_{false};
@@ -232,6 +243,19 @@ TEST(MapCorrector, PathAndMarkersShowTheCorrectedGraph) {
     if (m.ns == "keyframes") EXPECT_EQ(m.points.size(), keyframes);
     if (m.ns == "odometry_edges") EXPECT_EQ(m.points.size(), 2 * (keyframes - 1));
   }
+}
+
+TEST(MapCorrector, DiagnosticsReportQueueAndGraphSize) {
+  const std::string keyframes = std::to_string(client->status().keyframes);
+  EXPECT_TRUE(client->waitObserved([&](const Observed& o) {
+    if (!o.diagnostics) return false;
+    bool has_queue = false, has_keyframes = false;
+    for (const auto& kv : o.diagnostics->values) {
+      has_queue |= kv.key == "queue length";
+      has_keyframes |= kv.key == "keyframes" && kv.value == keyframes;
+    }
+    return has_queue && has_keyframes && o.diagnostics->level == diagnostic_msgs::DiagnosticStatus::OK;
+  }));
 }
 
 TEST(MapCorrector, OptimizePauseResumeStatus) {
