@@ -4,7 +4,8 @@
 // value of REFERENCE.md (B).  Then a comparison of the sparse Cholesky back ends on the finish
 // alone.  Writes Markdown to stdout.
 //
-//   bench_finish [--datasets DIR] [--runs 5] [--only NAME]
+//   bench_finish [--datasets DIR] [--runs 5] [--only NAME] [--solver-threads N]
+// --solver-threads: as toro_optimize (default 1: limitSolverThreads(1); 0: runtime defaults).
 #include <time.h>
 
 #include <algorithm>
@@ -99,6 +100,7 @@ int main(int argc, char** argv) {
   std::string dir = TORO_DATASETS_DIR;
   int runs = 5;
   std::string only;
+  int solver_threads = 1;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     if (key == "--datasets")
@@ -107,6 +109,8 @@ int main(int argc, char** argv) {
       runs = std::max(1, std::atoi(argv[i + 1]));
     else if (key == "--only")
       only = argv[i + 1];
+    else if (key == "--solver-threads")
+      solver_threads = std::atoi(argv[i + 1]);
     else {
       std::fprintf(stderr, "unknown option %s\n", key.c_str());
       return 2;
@@ -131,7 +135,15 @@ int main(int argc, char** argv) {
     cases.push_back({"sphere2500.g2o", kFinish, kFile, 727.150, 1e-4, 0.3, s});
     cases.push_back({"parking-garage.g2o", kFinish, kFile, 1.23869, 1e-4, 0.12, s});
   }
-  std::printf("runs per case: %d (median); OPENBLAS_NUM_THREADS=%s\n\n", runs,
+  std::string threads = "runtime defaults";
+  if (solver_threads > 0) {
+    const SolverThreadSettings set = limitSolverThreads(solver_threads);
+    threads = "limitSolverThreads(" + std::to_string(solver_threads) + "): OpenBLAS " +
+              (set.openblas_set ? "set" : "not loaded") + ", OpenMP dynamic " +
+              (set.openmp_dynamic_set ? "set" : "not loaded");
+  }
+  std::printf("runs per case: %d (median); solver threads: %s; OPENBLAS_NUM_THREADS=%s\n\n", runs,
+              threads.c_str(),
               std::getenv("OPENBLAS_NUM_THREADS") ? std::getenv("OPENBLAS_NUM_THREADS") : "(unset)");
   std::printf(
       "| file | mode | start | linear solver | TORO it. | finish it. | wall s | CPU s | factorise+solve "

@@ -1,5 +1,7 @@
 #include "sparse_cholesky.h"
 
+#include <dlfcn.h>
+
 #include <Eigen/SparseCholesky>
 #include <stdexcept>
 
@@ -15,6 +17,22 @@ bool cholmodAvailable() {
 #else
   return false;
 #endif
+}
+
+SolverThreadSettings limitSolverThreads(int blas_threads) {
+  // dlsym instead of linking: the BLAS behind CHOLMOD is chosen by the system (Debian's
+  // alternatives), and OpenMP is CHOLMOD's own dependency.
+  using IntSetter = void (*)(int);
+  SolverThreadSettings out;
+  if (auto set_threads = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) {
+    set_threads(blas_threads < 1 ? 1 : blas_threads);
+    out.openblas_set = true;
+  }
+  if (auto set_dynamic = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "omp_set_dynamic"))) {
+    set_dynamic(1);
+    out.openmp_dynamic_set = true;
+  }
+  return out;
 }
 
 const char* linearSolverName(LinearSolverType type) {

@@ -28,6 +28,20 @@ enum class LinearSolverType {
 
 // True if this build links CHOLMOD (kCholmodSupernodal is usable).
 bool cholmodAvailable();
+
+// The sparse Cholesky runs in runtimes with their own threads: OpenBLAS (when it is the system
+// BLAS) and CHOLMOD's OpenMP loops (4 threads, fixed at its compile time).  On this project's
+// 2-core machines, shared with other work, those threads spin and wait more than they compute:
+// measured on sphere2500.g2o (bench/finish_results.md), limiting them makes TORO-then-finish about
+// 1.7x faster in wall time and halves its CPU time.  This sets OpenBLAS to `blas_threads` threads
+// and lets OpenMP adapt its team sizes to the load (omp_set_dynamic).  Process-wide, so only
+// programs that own their process call it (toro_optimize, the benchmark); a library user decides
+// for its own process.  Looked up at run time: a runtime that is not loaded is left alone.
+struct SolverThreadSettings {
+  bool openblas_set = false;        // openblas_set_num_threads was found and called
+  bool openmp_dynamic_set = false;  // omp_set_dynamic was found and called
+};
+SolverThreadSettings limitSolverThreads(int blas_threads);
 const char* linearSolverName(LinearSolverType type);
 
 struct FinishOptions {
