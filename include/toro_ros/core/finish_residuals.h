@@ -5,7 +5,7 @@
 // so that sum e^T Omega e is g2oChi2().  The state of a node is perturbed on the right,
 //   X <- X * Exp_SE3(delta),  delta = (rho, phi)   (translation first, like the error).
 // (The cheaper X * (Exp_SO3(phi), rho) has the same Jacobians at delta = 0, but measured on
-// parking-garage.g2o it needs 23 instead of 13 iterations: the coupled translation V(phi) rho
+// parking-garage.g2o it needs 28 instead of 13 iterations: the coupled translation V(phi) rho
 // follows the curved valleys of the cost better on long steps.)
 //
 // 2D (lifted graphs, GraphDimension::k2D): the state is (x, y, theta), updated additively, and
