@@ -63,7 +63,7 @@ void writeKeyframesJson(std::ostream& out, Pipeline& p, const OfflineOptions& op
   std::unique_ptr<TruthTrajectory> truth;
   if (!options.truth_path.empty()) truth = std::make_unique<TruthTrajectory>(TruthTrajectory::load(options.truth_path));
   const auto& records = p.keyframes().records();
-  out << "  \"keyframes\": [\n";
+  out << "  \"trajectory\": [\n";
   for (std::size_t i = 0; i < records.size(); ++i) {
     out << "    {\"id\": " << records[i].id << ", \"stamp\": " << num(records[i].stamp.toSec())
         << ", \"odometry\": " << vec3(records[i].odom_T_base.translation())

@@ -4,7 +4,8 @@
 //                        /corrected_path (one nav_msgs/Path at the end), /tf (map -> odom at each
 //                        keyframe stamp from the final poses)
 //   summary.json         counts, chi2 before/after, times, the error curve, per-keyframe poses
-//                        (odometry, corrected, truth) and per-loop-closure chi2, for the plots
+//                        ("trajectory": odometry, corrected, truth) and per-loop-closure chi2 (indices
+//                        into "trajectory"), for scripts/plot_trajectory.py
 #pragma once
 
 #include <string>
