@@ -64,95 +64,126 @@ double secondsSince(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
 
-// Nielsen's damping update after an accepted step with gain ratio rho (Madsen, Nielsen,
-// Tingleff, "Methods for non-linear least squares problems", 2004, eq. 3.16): shrink lambda
-// by up to 3 when the quadratic model predicted the decrease well.
 // The quadratic model matched the actual decrease closely.
 bool gainRatioIsReliable(double rho) { return rho > 0.9 && rho < 1.1; }
 
+// Nielsen's damping update after an accepted step with gain ratio rho (Madsen, Nielsen,
+// Tingleff, "Methods for non-linear least squares problems", 2004, eq. 3.16): shrink lambda
+// by up to 3 when the quadratic model predicted the decrease well.
 double shrinkFactor(double rho) {
   const double t = 2.0 * rho - 1.0;
   return std::max(1.0 / 3.0, 1.0 - t * t * t);
 }
 
+// One Levenberg-Marquardt run: the loop state and one method per part of an iteration.
 template <class Model>
-FinishReport runFinish(PoseGraph& graph, const FinishOptions& options, const FinishCallback& callback) {
-  const Clock::time_point start = Clock::now();
-  FinishReport report;
-  detail::FinishProblem<Model> problem(graph, options.linear_solver);
-  report.held_nodes = problem.numHeld();
-  report.repaired_information = problem.repairedInformation();
+class LmRun {
+ public:
+  LmRun(PoseGraph& graph, const FinishOptions& options)
+      : options_(options), problem_(graph, options.linear_solver) {}
 
-  double chi2 = problem.linearize();
-  report.initial_chi2 = report.final_chi2 = chi2;
-  if (graph.numConstraints() == 0 || problem.numFree() == 0) {
-    report.stop = FinishStop::kNoConstraints;
-    report.seconds = secondsSince(start);
-    return report;
+  FinishReport run(PoseGraph& graph, const FinishCallback& callback);
+
+ private:
+  // Solves for and tries one step; fills `it` and updates the state and report.stop.
+  void iterate(FinishIteration* it);
+  void accept(std::vector<typename Model::State> trial, double new_chi2, FinishIteration* it);
+  void reject();
+  double gradientNorm() const { return 2.0 * problem_.b().template lpNorm<Eigen::Infinity>(); }
+
+  const FinishOptions& options_;
+  Clock::time_point start_ = Clock::now();  // before problem_: setup counts in report_.seconds
+  detail::FinishProblem<Model> problem_;
+  FinishReport report_;
+  double chi2_ = 0.0, gradient_ = 0.0, lambda_ = 0.0, nu_ = 2.0, diagonal_scale_ = 1.0;
+  Eigen::VectorXd step_;
+};
+
+template <class Model>
+FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback) {
+  report_.held_nodes = problem_.numHeld();
+  report_.repaired_information = problem_.repairedInformation();
+  chi2_ = problem_.linearize();
+  report_.initial_chi2 = chi2_;
+  if (graph.numConstraints() == 0 || problem_.numFree() == 0) {
+    report_.stop = FinishStop::kNoConstraints;
+  } else {
+    gradient_ = gradientNorm();
+    diagonal_scale_ = std::max(problem_.maxDiagonal(), 1e-300);
+    lambda_ = options_.initial_lambda_factor * diagonal_scale_;
+    if (gradient_ < options_.gradient_tolerance) report_.stop = FinishStop::kGradient;
   }
-  double gradient = 2.0 * problem.b().template lpNorm<Eigen::Infinity>();
-  const double diagonal_scale = std::max(problem.maxDiagonal(), 1e-300);
-  double lambda = options.initial_lambda_factor * diagonal_scale;
-  double nu = 2.0;
-  Eigen::VectorXd step;
-  if (gradient < options.gradient_tolerance) report.stop = FinishStop::kGradient;
-
-  while (report.stop == FinishStop::kNotRun) {
-    if (report.iterations >= options.max_iterations) {
-      report.stop = FinishStop::kMaxIterations;
+  while (report_.stop == FinishStop::kNotRun) {
+    if (report_.iterations >= options_.max_iterations) {
+      report_.stop = FinishStop::kMaxIterations;
       break;
     }
     FinishIteration it;
-    it.iteration = ++report.iterations;
-    it.lambda = lambda;
-    it.gradient_norm = gradient;
-    const Clock::time_point solve_start = Clock::now();
-    const bool solved = problem.solveStep(lambda, &step);
-    report.factorization_seconds += secondsSince(solve_start);
-    double new_chi2 = chi2;
-    std::vector<typename Model::State> trial;
-    if (solved) {
-      it.step_norm = step.lpNorm<Eigen::Infinity>();
-      trial = problem.retracted(step);
-      new_chi2 = problem.cost(trial);
-      // Decrease predicted by the damped quadratic model: -h^T b + lambda |h|^2 (> 0).
-      const double predicted = -step.dot(problem.b()) + lambda * step.squaredNorm();
-      it.gain_ratio = predicted > 0.0 ? (chi2 - new_chi2) / predicted : -1.0;
-    }
-    it.accepted = solved && std::isfinite(new_chi2) && it.gain_ratio > 0.0 && new_chi2 < chi2;
-    if (it.accepted) {
-      const double relative_decrease = (chi2 - new_chi2) / chi2;
-      problem.states() = std::move(trial);
-      chi2 = problem.linearize();
-      gradient = 2.0 * problem.b().template lpNorm<Eigen::Infinity>();
-      lambda *= shrinkFactor(it.gain_ratio);
-      nu = 2.0;
-      if (relative_decrease < options.relative_decrease_tolerance) {
-        report.stop = FinishStop::kRelativeDecrease;
-      } else if (gainRatioIsReliable(it.gain_ratio)) {
-        // Quadratic convergence: when the model was right about this step, ask it about the
-        // next one before paying for its factorisation (saves the last, confirming iteration).
-        const double next = problem.estimatedNextDecrease();
-        if (next >= 0.0 && next < options.relative_decrease_tolerance * chi2) {
-          report.stop = FinishStop::kPredictedDecrease;
-        }
-      }
-      if (gradient < options.gradient_tolerance) report.stop = FinishStop::kGradient;
-    } else {
-      lambda *= nu;
-      nu *= 2.0;
-      if (lambda > options.max_lambda_factor * diagonal_scale) report.stop = FinishStop::kLambdaTooLarge;
-    }
-    if (solved && it.step_norm < options.step_tolerance) report.stop = FinishStop::kStep;
-    it.chi2 = chi2;
-    it.seconds = secondsSince(start);
-    report.history.push_back(it);
+    iterate(&it);
+    report_.history.push_back(it);
     if (callback) callback(it);
   }
-  problem.writeBack(graph);
-  report.final_chi2 = chi2;
-  report.seconds = secondsSince(start);
-  return report;
+  problem_.writeBack(graph);
+  report_.final_chi2 = chi2_;
+  report_.seconds = secondsSince(start_);
+  return report_;
+}
+
+template <class Model>
+void LmRun<Model>::iterate(FinishIteration* it) {
+  it->iteration = ++report_.iterations;
+  it->lambda = lambda_;
+  it->gradient_norm = gradient_;
+  const Clock::time_point solve_start = Clock::now();
+  const bool solved = problem_.solveStep(lambda_, &step_);
+  report_.factorization_seconds += secondsSince(solve_start);
+  double new_chi2 = chi2_;
+  std::vector<typename Model::State> trial;
+  if (solved) {
+    it->step_norm = step_.lpNorm<Eigen::Infinity>();
+    trial = problem_.retracted(step_);
+    new_chi2 = problem_.cost(trial);
+    // Decrease predicted by the damped quadratic model: -h^T b + lambda |h|^2 (> 0).
+    const double predicted = -step_.dot(problem_.b()) + lambda_ * step_.squaredNorm();
+    it->gain_ratio = predicted > 0.0 ? (chi2_ - new_chi2) / predicted : -1.0;
+  }
+  it->accepted = solved && std::isfinite(new_chi2) && it->gain_ratio > 0.0 && new_chi2 < chi2_;
+  if (it->accepted) {
+    accept(std::move(trial), new_chi2, it);
+  } else {
+    reject();
+  }
+  if (solved && it->step_norm < options_.step_tolerance) report_.stop = FinishStop::kStep;
+  it->chi2 = chi2_;
+  it->seconds = secondsSince(start_);
+}
+
+template <class Model>
+void LmRun<Model>::accept(std::vector<typename Model::State> trial, double new_chi2, FinishIteration* it) {
+  const double relative_decrease = (chi2_ - new_chi2) / chi2_;
+  problem_.states() = std::move(trial);
+  chi2_ = problem_.linearize();
+  gradient_ = gradientNorm();
+  lambda_ *= shrinkFactor(it->gain_ratio);
+  nu_ = 2.0;
+  if (relative_decrease < options_.relative_decrease_tolerance) {
+    report_.stop = FinishStop::kRelativeDecrease;
+  } else if (gainRatioIsReliable(it->gain_ratio)) {
+    // Quadratic convergence: when the model was right about this step, ask it about the next
+    // one before paying for its factorisation (saves the last, confirming iteration).
+    const double next = problem_.estimatedNextDecrease();
+    if (next >= 0.0 && next < options_.relative_decrease_tolerance * chi2_) {
+      report_.stop = FinishStop::kPredictedDecrease;
+    }
+  }
+  if (gradient_ < options_.gradient_tolerance) report_.stop = FinishStop::kGradient;
+}
+
+template <class Model>
+void LmRun<Model>::reject() {
+  lambda_ *= nu_;
+  nu_ *= 2.0;
+  if (lambda_ > options_.max_lambda_factor * diagonal_scale_) report_.stop = FinishStop::kLambdaTooLarge;
 }
 
 }  // namespace
@@ -207,9 +238,9 @@ LevenbergMarquardt::LevenbergMarquardt(const FinishOptions& options) : options_(
 
 FinishReport LevenbergMarquardt::optimize(PoseGraph& graph, const FinishCallback& callback) const {
   if (graph.dimension() == GraphDimension::k2D) {
-    return runFinish<detail::ModelSE2>(graph, options_, callback);
+    return LmRun<detail::ModelSE2>(graph, options_).run(graph, callback);
   }
-  return runFinish<detail::ModelSE3>(graph, options_, callback);
+  return LmRun<detail::ModelSE3>(graph, options_).run(graph, callback);
 }
 
 }  // namespace toro

@@ -2,7 +2,10 @@
 
 #include <cmath>
 #include <random>
+#include <string>
+#include <vector>
 
+#include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
 
 using namespace toro;
@@ -210,4 +213,22 @@ TEST(Metrics, PlanarInvariantUnderPlanarRigidTransform) {
   for (const Node& node : std::vector<Node>(g.nodes())) g.setPose(node.id, world_T_old * node.pose);
   EXPECT_NEAR(g2oChi2(g), chi2, 1e-10 * chi2);
   EXPECT_NEAR(seSyncObjective(g), sesync, 1e-10 * sesync);
+}
+
+TEST(Metrics, DatasetFilesAtTheirOwnPosesGiveFinitePositiveValues) {
+  // 3D and 2D files: the file poses are not optimal, so every measure is finite and positive, and
+  // g2o chi2 lies above the best known minimum of REFERENCE.md (B).
+  const std::vector<std::pair<std::string, double>> files = {{"sphere2500.g2o", 727.150},
+                                                             {"2d/intel.g2o", 45.0047}};
+  for (const auto& [file, best] : files) {
+    const PoseGraph g = readGraph(std::string(TORO_DATASETS_DIR) + "/" + file);
+    const double chi2 = g2oChi2(g), sesync = seSyncObjective(g);
+    EXPECT_TRUE(std::isfinite(chi2) && std::isfinite(sesync)) << file;
+    EXPECT_GT(chi2, best) << file;
+    EXPECT_GT(sesync, 0.0) << file;
+    const ToroError te = toroError(g);
+    EXPECT_GT(te.sum, 0.0) << file;
+    EXPECT_LE(te.max_rotation, M_PI) << file;
+    EXPECT_GE(te.max_translation, te.mean_translation) << file;
+  }
 }
