@@ -19,8 +19,9 @@ constexpr const char* kPose3Names[7] = {"x", "y", "z", "qx", "qy", "qz", "qw"};
 constexpr const char* kInformation3Names[21] = {"I11", "I12", "I13", "I14", "I15", "I16", "I22",
                                                 "I23", "I24", "I25", "I26", "I33", "I34", "I35",
                                                 "I36", "I44", "I45", "I46", "I55", "I56", "I66"};
-constexpr const char* kPose2Names[3] = {"x", "y", "theta"};
-constexpr const char* kInformation2Names[6] = {"I11", "I12", "I13", "I22", "I23", "I33"};
+// EDGE_SE2 information: xx xy xtheta yy ytheta thetatheta.
+constexpr PlanarInformationLayout kInformation2Layout{
+    {"I11", "I12", "I13", "I22", "I23", "I33"}, {0, 0, 0, 1, 1, 2}, {0, 1, 2, 1, 2, 2}};
 
 void parseVertexSe3(const LineFields& f, ParsedLines& out) {
   f.expectCount(8);
@@ -46,32 +47,6 @@ void parseEdgeSe3(const LineFields& f, ParsedLines& out) {
   out.edges.push_back(EdgeRecord{c, kEdgeSe3, f.line()});
 }
 
-void parseVertexSe2(const LineFields& f, ParsedLines& out) {
-  f.expectCount(4);
-  out.setDimension(GraphDimension::k2D, f);
-  const NodeId id = f.id(1, "id");
-  double v[3];
-  f.numbers(2, 3, kPose2Names, v);
-  out.vertices.push_back(VertexRecord{id, liftPlanarPose(v[0], v[1], v[2]), f.line()});
-}
-
-void parseEdgeSe2(const LineFields& f, ParsedLines& out) {
-  f.expectCount(11);
-  out.setDimension(GraphDimension::k2D, f);
-  Constraint c;
-  c.from = f.id(1, "id1");
-  c.to = f.id(2, "id2");
-  double v[3];
-  f.numbers(3, 3, kPose2Names, v);
-  c.measurement = liftPlanarPose(v[0], v[1], v[2]);
-  double m[6];  // xx xy xθ yy yθ θθ
-  f.numbers(6, 6, kInformation2Names, m);
-  Matrix3 planar;
-  planar << m[0], m[1], m[2], m[1], m[3], m[4], m[2], m[4], m[5];
-  c.information = liftPlanarInformation(planar);
-  out.edges.push_back(EdgeRecord{c, kEdgeSe2, f.line()});
-}
-
 void parseFix(const LineFields& f, ParsedLines& out) {
   // g2o reads every id on the line.
   if (f.size() == 0) f.fail("expected at least 1 field (a node id), got 0");
@@ -87,8 +62,8 @@ void parseG2oLine(const LineFields& f, ParsedLines& out) {
   const std::string_view tag = f.tag();
   if (tag == kVertexSe3) return parseVertexSe3(f, out);
   if (tag == kEdgeSe3) return parseEdgeSe3(f, out);
-  if (tag == kVertexSe2) return parseVertexSe2(f, out);
-  if (tag == kEdgeSe2) return parseEdgeSe2(f, out);
+  if (tag == kVertexSe2) return parsePlanarVertex(f, out);
+  if (tag == kEdgeSe2) return parsePlanarEdge(f, kEdgeSe2, kInformation2Layout, out);
   if (tag == kFix) return parseFix(f, out);
   f.fail("not a g2o tag");
 }

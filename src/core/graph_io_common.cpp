@@ -192,5 +192,35 @@ void LineWriter::endLine(std::ostream& out) {
   buffer_.clear();
 }
 
+namespace {
+constexpr const char* kPose2Names[3] = {"x", "y", "theta"};
+}  // namespace
+
+void parsePlanarVertex(const LineFields& f, ParsedLines& out) {
+  f.expectCount(4);
+  out.setDimension(GraphDimension::k2D, f);
+  const NodeId id = f.id(1, "id");
+  double v[3];
+  f.numbers(2, 3, kPose2Names, v);
+  out.vertices.push_back(VertexRecord{id, liftPlanarPose(v[0], v[1], v[2]), f.line()});
+}
+
+void parsePlanarEdge(const LineFields& f, const char* tag, const PlanarInformationLayout& layout, ParsedLines& out) {
+  f.expectCount(11);
+  out.setDimension(GraphDimension::k2D, f);
+  Constraint c;
+  c.from = f.id(1, "id1");
+  c.to = f.id(2, "id2");
+  double v[3];
+  f.numbers(3, 3, kPose2Names, v);
+  c.measurement = liftPlanarPose(v[0], v[1], v[2]);
+  double m[6];
+  f.numbers(6, 6, layout.names, m);
+  Matrix3 planar;
+  for (int k = 0; k < 6; ++k) planar(layout.row[k], layout.col[k]) = planar(layout.col[k], layout.row[k]) = m[k];
+  c.information = liftPlanarInformation(planar);
+  out.edges.push_back(EdgeRecord{c, tag, f.line()});
+}
+
 }  // namespace detail
 }  // namespace toro

@@ -102,6 +102,18 @@ Matrix6 liftPlanarInformation(const Matrix3& planar);
 Matrix3 planarInformation(const Matrix6& information);
 
 Pose3 liftPlanarPose(double x, double y, double theta);
+
+// Where a planar edge's six information numbers go in the symmetric 3x3 (x, y, theta): g2o and
+// TORO order them differently.
+struct PlanarInformationLayout {
+  const char* names[6];
+  int row[6];
+  int col[6];
+};
+// `TAG id x y theta` (g2o VERTEX_SE2, TORO VERTEX2/VERTEX).
+void parsePlanarVertex(const LineFields& f, ParsedLines& out);
+// `TAG id1 id2 dx dy dtheta` + six information numbers in `layout` order.
+void parsePlanarEdge(const LineFields& f, const char* tag, const PlanarInformationLayout& layout, ParsedLines& out);
 // (x, y, yaw) of a pose of a lifted 2D graph.
 Vector3 planarPose(const Pose3& pose);
 

@@ -18,9 +18,10 @@ constexpr const char* kPose3Names[6] = {"x", "y", "z", "roll", "pitch", "yaw"};
 constexpr const char* kInformation3Names[21] = {"m00", "m01", "m02", "m03", "m04", "m05", "m11",
                                                 "m12", "m13", "m14", "m15", "m22", "m23", "m24",
                                                 "m25", "m33", "m34", "m35", "m44", "m45", "m55"};
-constexpr const char* kPose2Names[3] = {"x", "y", "theta"};
 // TORO 2D order: xx xy yy θθ xθ yθ.
-constexpr const char* kInformation2Names[6] = {"m00", "m01", "m11", "m22", "m02", "m12"};
+// EDGE2 information: xx xy yy thetatheta xtheta ytheta (TORO's posegraph2 order).
+constexpr PlanarInformationLayout kInformation2Layout{
+    {"m00", "m01", "m11", "m22", "m02", "m12"}, {0, 0, 1, 2, 0, 1}, {0, 1, 1, 2, 2, 2}};
 
 // Position of x y z roll pitch yaw in TORO's internal rotation-first order (roll pitch yaw x y z).
 constexpr int kRotationFirstIndex[6] = {3, 4, 5, 0, 1, 2};
@@ -81,31 +82,6 @@ void parseEdge3(const LineFields& f, ToroInformationOrder order, ParsedLines& ou
   out.edges.push_back(EdgeRecord{c, kEdge3, f.line()});
 }
 
-void parseVertex2(const LineFields& f, ParsedLines& out) {
-  f.expectCount(4);
-  out.setDimension(GraphDimension::k2D, f);
-  const NodeId id = f.id(1, "id");
-  double v[3];
-  f.numbers(2, 3, kPose2Names, v);
-  out.vertices.push_back(VertexRecord{id, liftPlanarPose(v[0], v[1], v[2]), f.line()});
-}
-
-void parseEdge2(const LineFields& f, const char* tag, ParsedLines& out) {
-  f.expectCount(11);
-  out.setDimension(GraphDimension::k2D, f);
-  Constraint c;
-  c.from = f.id(1, "id1");
-  c.to = f.id(2, "id2");
-  double v[3];
-  f.numbers(3, 3, kPose2Names, v);
-  c.measurement = liftPlanarPose(v[0], v[1], v[2]);
-  double m[6];  // xx xy yy θθ xθ yθ
-  f.numbers(6, 6, kInformation2Names, m);
-  Matrix3 planar;
-  planar << m[0], m[1], m[4], m[1], m[2], m[5], m[4], m[5], m[3];
-  c.information = liftPlanarInformation(planar);
-  out.edges.push_back(EdgeRecord{c, tag, f.line()});
-}
 }  // namespace
 
 bool isToroTag(std::string_view tag) {
@@ -117,9 +93,9 @@ void parseToroLine(const LineFields& f, ToroInformationOrder order, ParsedLines&
   const std::string_view tag = f.tag();
   if (tag == kVertex3) return parseVertex3(f, out);
   if (tag == kEdge3) return parseEdge3(f, order, out);
-  if (tag == kVertex2 || tag == kVertex2Short) return parseVertex2(f, out);
-  if (tag == kEdge2) return parseEdge2(f, kEdge2, out);
-  if (tag == kEdge2Short) return parseEdge2(f, kEdge2Short, out);
+  if (tag == kVertex2 || tag == kVertex2Short) return parsePlanarVertex(f, out);
+  if (tag == kEdge2) return parsePlanarEdge(f, kEdge2, kInformation2Layout, out);
+  if (tag == kEdge2Short) return parsePlanarEdge(f, kEdge2Short, kInformation2Layout, out);
   f.fail("not a TORO tag");
 }
 
