@@ -105,27 +105,35 @@ LoopClosure loopClosureMessage(const toro::PoseGraph& graph, const RobotTimeline
 
 void writeRobotBag(const toro::PoseGraph& graph, const RobotTimeline& t, const GraphToBagOptions& o,
                    GraphToBagResult* result) {
+  // Loop closures by publication time, merged into the odometry stream so that the bag is written
+  // in time order (as a recording is; readers then stay within one chunk at a time).
+  std::vector<std::pair<ros::Time, LoopClosure>> closures;
+  for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
+    if (!t.is_loop_closure[c]) continue;
+    ros::Time when;
+    LoopClosure msg = loopClosureMessage(graph, t, c, o, &when);
+    closures.emplace_back(when, std::move(msg));
+  }
+  std::stable_sort(closures.begin(), closures.end(),
+                   [](const auto& a, const auto& b) { return a.first < b.first; });
   try {
     rosbag::Bag bag(o.output_bag, rosbag::bagmode::Write);
-    bag.setCompression(rosbag::compression::LZ4);
+    auto next = closures.begin();
     const long last = t.sample_of_keyframe.back();
     for (long s = 0; s <= last; ++s) {
       const nav_msgs::Odometry odom = odometryAtSample(t, s, o);
+      for (; next != closures.end() && next->first < odom.header.stamp; ++next)
+        bag.write(o.loop_closure_topic, next->first, next->second);
       bag.write(o.odom_topic, odom.header.stamp, odom);
       bag.write(o.tf_topic, odom.header.stamp, tfFromOdometry(odom));
       ++result->odometry_messages;
     }
-    for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
-      if (!t.is_loop_closure[c]) continue;
-      ros::Time when;
-      const LoopClosure msg = loopClosureMessage(graph, t, c, o, &when);
-      bag.write(o.loop_closure_topic, when, msg);
-      ++result->loop_closures;
-    }
+    for (; next != closures.end(); ++next) bag.write(o.loop_closure_topic, next->first, next->second);
     bag.close();
   } catch (const rosbag::BagException& e) {
     throw std::runtime_error(o.output_bag + ": cannot write the bag: " + e.what());
   }
+  result->loop_closures = closures.size();
   result->keyframes = t.ids.size();
   result->duration_sec = (t.stampOfSample(t.sample_of_keyframe.back()) - t.start).toSec();
   result->written.insert(result->written.begin(), o.output_bag);
