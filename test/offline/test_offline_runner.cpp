@@ -135,6 +135,19 @@ TEST(OfflineRunner, UnknownParameterKeyIsRefusedNamingTheFile) {
   fs::remove(p);
 }
 
+TEST(OfflineRunner, EveryShippedParameterFileLoads) {
+  // config/*.yaml and bench/*.yaml are all node parameter files: no unknown key, no bad value.
+  std::size_t files = 0;
+  for (const char* dir : {"/config", "/bench"}) {
+    for (const auto& entry : fs::directory_iterator(std::string(TORO_SOURCE_DIR) + dir)) {
+      if (entry.path().extension() != ".yaml") continue;
+      EXPECT_NO_THROW(loadNodeOptionsFile(entry.path().string())) << entry.path();
+      ++files;
+    }
+  }
+  EXPECT_GE(files, 3u);  // map_corrector, replay_sample, offline_period_0.1s
+}
+
 TEST(ToroOfflineTool, WritesGraphBagAndSummaryThatAgree) {
   const fs::path out = fs::temp_directory_path() / ("toro_offline_tool_" + std::to_string(::getpid()));
   const std::string cmd = std::string(TORO_OFFLINE_BIN) + " " + kSample + ".bag --config " + kReplayConfig +
