@@ -169,6 +169,15 @@ TEST(ToroOfflineTool, WritesGraphBagAndSummaryThatAgree) {
   rosbag::Bag bag((out / "corrected_poses.bag").string(), rosbag::bagmode::Read);
   EXPECT_EQ(rosbag::View(bag, rosbag::TopicQuery("/corrected_pose")).size(), 144u);
   EXPECT_EQ(rosbag::View(bag, rosbag::TopicQuery("/tf")).size(), 144u);
+  // The plot script draws the summary into a PNG.
+  const std::string plot = "/usr/bin/python3 " + std::string(TORO_SOURCE_DIR) + "/scripts/plot_trajectory.py " +
+                           (out / "summary.json").string() + " -o " + (out / "t.png").string() + " > /dev/null";
+  ASSERT_EQ(std::system(plot.c_str()), 0) << plot;
+  std::ifstream png(out / "t.png", std::ios::binary);
+  char magic[8] = {};
+  png.read(magic, 8);
+  EXPECT_EQ(std::string(magic + 1, 3), "PNG");
+  EXPECT_GT(fs::file_size(out / "t.png"), 20000u);
   fs::remove_all(out);
   fs::remove(out.string() + ".log");
 }
