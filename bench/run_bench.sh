@@ -4,7 +4,9 @@
 # the top of bench/bench_toro.cpp), e.g. `bash bench/run_bench.sh --only sphere2500 --no-synthetic`.
 #
 # Environment: TORO_BUILD_DIR (default build), TORO_BENCH_OUT (default bench/results.md),
-# TORO_BENCH_E2E (default 1; 0 skips the end-to-end toro_optimize timing of the target datasets).
+# TORO_BENCH_E2E (default 1; 0 skips the end-to-end toro_optimize timing of the target datasets),
+# TORO_BENCH_NICE (a niceness for the measured processes, e.g. -10 as root on a shared machine so
+# that other jobs disturb the wall times less; noted in the results).
 set -euo pipefail
 
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -15,6 +17,8 @@ BENCH="${BUILD_DIR}/devel/lib/toro_ros/bench_toro"
 OPTIMIZE="${BUILD_DIR}/devel/lib/toro_ros/toro_optimize"
 DATASETS="$(cd "${REPO_ROOT}/.." && pwd)/shared/datasets"
 E2E_RUNS=5
+RUN_PREFIX=()
+if [[ -n "${TORO_BENCH_NICE:-}" ]]; then RUN_PREFIX=(nice -n "${TORO_BENCH_NICE}"); fi
 
 # The arguments as one would type them (quoted only where the shell needs it).
 quotedArgs() {
@@ -32,7 +36,7 @@ endToEndRow() {
   shift
   local -a wall_list=() cpu_list=()
   for ((run = 0; run < E2E_RUNS; ++run)); do
-    t="$( { TIMEFORMAT='%R %U %S'; time "${OPTIMIZE}" -q "$@" "${DATASETS}/${file}" >/dev/null </dev/null; } 2>&1)"
+    t="$( { TIMEFORMAT='%R %U %S'; time "${RUN_PREFIX[@]}" "${OPTIMIZE}" -q "$@" "${DATASETS}/${file}" >/dev/null </dev/null; } 2>&1)"
     read -r real user sys <<<"${t}"
     wall_list+=("${real}")
     cpu_list+=("$(awk -v u="${user}" -v s="${sys}" 'BEGIN {printf "%.3f", u + s}')")
@@ -64,7 +68,7 @@ TORO_BUILD_TARGETS="bench_toro toro_optimize" bash "${REPO_ROOT}/scripts/build.s
 cpu_model="$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ *//')"
 memory="$(awk '/MemTotal/ {printf "%.1f GiB", $2 / 1048576}' /proc/meminfo)"
 commit="$(git -C "${REPO_ROOT}" rev-parse --short HEAD 2>/dev/null || echo unknown)"
-if [[ -n "$(git -C "${REPO_ROOT}" status --porcelain --untracked-files=no -- src include bench 2>/dev/null)" ]]; then
+if [[ -n "$(git -C "${REPO_ROOT}" status --porcelain --untracked-files=no -- src include bench ':!bench/*.md' 2>/dev/null)" ]]; then
   commit="${commit} + uncommitted changes in src/include/bench"
 fi
 load_before="$(cut -d' ' -f1-3 /proc/loadavg)"
@@ -72,7 +76,7 @@ load_before="$(cut -d' ' -f1-3 /proc/loadavg)"
 tables="$(mktemp)"
 trap 'rm -f "${tables}"' EXIT
 start=$(date +%s)
-"${BENCH}" "$@" >"${tables}" </dev/null
+"${RUN_PREFIX[@]}" "${BENCH}" "$@" >"${tables}" </dev/null
 elapsed=$(($(date +%s) - start))
 e2e=""
 if [[ "${TORO_BENCH_E2E:-1}" != 0 ]]; then e2e="$(endToEndTable)"; fi
@@ -80,17 +84,18 @@ if [[ "${TORO_BENCH_E2E:-1}" != 0 ]]; then e2e="$(endToEndTable)"; fi
 {
   echo "# toro_ros benchmark results"
   echo
-  echo "Written by \`bash bench/run_bench.sh$(quotedArgs "$@")\`, which builds the \`bench_toro\` target"
+  echo "Written by \`${TORO_BENCH_NICE:+TORO_BENCH_NICE=${TORO_BENCH_NICE} }bash bench/run_bench.sh$(quotedArgs "$@")\`, which builds the \`bench_toro\` target"
   echo "(Release, see scripts/build.sh) and runs:"
   echo
   echo '```'
-  echo "${BENCH#"${REPO_ROOT}"/}$(quotedArgs "$@")"
+  echo "${RUN_PREFIX[*]}${RUN_PREFIX[*]:+ }${BENCH#"${REPO_ROOT}"/}$(quotedArgs "$@")"
   echo '```'
   echo
   echo "- Date: $(date -u '+%Y-%m-%d %H:%M UTC'); benchmark wall time ${elapsed} s"
   echo "- Machine: ${cpu_model}, $(nproc) cores (nproc), ${memory} RAM; $(uname -sr)"
   echo "- Compiler: $(c++ --version | head -1)"
   echo "- Code: commit ${commit}"
+  echo "- Scheduling: niceness ${TORO_BENCH_NICE:-0} for the measured processes (lower = higher priority)."
   echo "- Load average (1/5/15 min) when the run started: ${load_before}. Other jobs share this machine,"
   echo "  so wall times carry noise; [min, max] over the runs shows how much."
   echo
