@@ -168,9 +168,12 @@ void LmRun<Model>::accept(std::vector<typename Model::State> trial, double new_c
   nu_ = 2.0;
   if (relative_decrease < options_.relative_decrease_tolerance) {
     report_.stop = FinishStop::kRelativeDecrease;
-  } else if (gainRatioIsReliable(it->gain_ratio)) {
+  } else if (gainRatioIsReliable(it->gain_ratio) &&
+             it->lambda <= options_.initial_lambda_factor * diagonal_scale_) {
     // Quadratic convergence: when the model was right about this step, ask it about the next
-    // one before paying for its factorisation (saves the last, confirming iteration).
+    // one before paying for its factorisation (saves the last, confirming iteration).  Only in
+    // the Gauss-Newton regime: with a large lambda the damped estimate b^T (H + lambda I)^-1 b
+    // underestimates the next decrease and would stop too early.
     const double next = problem_.estimatedNextDecrease();
     if (next >= 0.0 && next < options_.relative_decrease_tolerance * chi2_) {
       report_.stop = FinishStop::kPredictedDecrease;
