@@ -41,12 +41,13 @@ long rssKiB(int pid) {
 double percentile(std::vector<double> v, double p) {
   if (v.empty()) return NAN;
   std::sort(v.begin(), v.end());
-  const std::size_t i = std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(p * v.size())) - (p > 0 ? 1 : 0));
+  const std::size_t i =
+      std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(p * v.size())) - (p > 0 ? 1 : 0));
   return v[i];
 }
 
 struct LatencyProbe {
-  std::mutex mutex;  // guards everything below
+  std::mutex mutex;                                              // guards everything below
   std::deque<std::pair<ros::WallTime, std::size_t>> unanswered;  // publish time, keyframes then
   geometry_msgs::Transform last;
   bool have_last = false;
@@ -59,10 +60,11 @@ struct LatencyProbe {
       std::lock_guard<std::mutex> lock(mutex);
       const auto& a = t.transform;
       // New keyframes move map->odom only by rounding (~1e-15); a loop closure by millimetres.
-      const double moved = std::abs(a.translation.x - last.translation.x) + std::abs(a.translation.y - last.translation.y) +
-                           std::abs(a.translation.z - last.translation.z) + std::abs(a.rotation.x - last.rotation.x) +
-                           std::abs(a.rotation.y - last.rotation.y) + std::abs(a.rotation.z - last.rotation.z) +
-                           std::abs(a.rotation.w - last.rotation.w);
+      const double moved =
+          std::abs(a.translation.x - last.translation.x) + std::abs(a.translation.y - last.translation.y) +
+          std::abs(a.translation.z - last.translation.z) + std::abs(a.rotation.x - last.rotation.x) +
+          std::abs(a.rotation.y - last.rotation.y) + std::abs(a.rotation.z - last.rotation.z) +
+          std::abs(a.rotation.w - last.rotation.w);
       const bool changed = !have_last || moved > kChangeThreshold;
       last = a;
       have_last = true;
@@ -90,11 +92,13 @@ int main(int argc, char** argv) {
   LatencyProbe probe;
   ros::Publisher odom_pub = nh.advertise<nav_msgs::Odometry>("odom", 1000);
   ros::Publisher loop_pub = nh.advertise<toro_ros::LoopClosure>("loop_closure", 100);
-  ros::Subscriber tf_sub = nh.subscribe("/tf", 1000, &LatencyProbe::onTf, &probe, ros::TransportHints().tcpNoDelay());
+  ros::Subscriber tf_sub =
+      nh.subscribe("/tf", 1000, &LatencyProbe::onTf, &probe, ros::TransportHints().tcpNoDelay());
   ros::AsyncSpinner spinner(1);
   spinner.start();
-  while (ros::ok() && (odom_pub.getNumSubscribers() == 0 || loop_pub.getNumSubscribers() == 0 ||
-                       tf_sub.getNumPublishers() == 0 || !ros::service::exists("/map_corrector/get_status", false)))
+  while (ros::ok() &&
+         (odom_pub.getNumSubscribers() == 0 || loop_pub.getNumSubscribers() == 0 ||
+          tf_sub.getNumPublishers() == 0 || !ros::service::exists("/map_corrector/get_status", false)))
     ros::WallDuration(0.05).sleep();
   const long rss_start = rssKiB(pid);
 
@@ -136,10 +140,12 @@ int main(int argc, char** argv) {
         max_queue = std::max<std::size_t>(max_queue, s.response.queue_length);
         dropped = s.response.queue_dropped;
         keyframes = s.response.keyframes;
-        std::fprintf(stderr, "sent %zu  keyframes %zu  queue %lu  loop closures %lu applied %lu refused  rss %ld KiB\n", i,
-                     keyframes, static_cast<unsigned long>(s.response.queue_length),
-                     static_cast<unsigned long>(s.response.loop_closures_applied),
-                     static_cast<unsigned long>(s.response.loop_closures_refused), rssKiB(pid));
+        std::fprintf(
+            stderr,
+            "sent %zu  keyframes %zu  queue %lu  loop closures %lu applied %lu refused  rss %ld KiB\n", i,
+            keyframes, static_cast<unsigned long>(s.response.queue_length),
+            static_cast<unsigned long>(s.response.loop_closures_applied),
+            static_cast<unsigned long>(s.response.loop_closures_refused), rssKiB(pid));
       }
     }
     truth = truth * toro::Pose3::fromRollPitchYaw(step, 0, 0, 0, 0, turn);
@@ -156,17 +162,20 @@ int main(int argc, char** argv) {
     all.push_back(l * 1e3);
     if (k >= total * 3 / 4) last_quarter.push_back(l * 1e3);
   }
-  std::printf("keyframes %lu, constraints %lu, loop closures sent %zu, applied %lu, refused %lu, unanswered %zu\n",
-              static_cast<unsigned long>(s.response.keyframes), static_cast<unsigned long>(s.response.constraints),
-              probe.latencies.size() + probe.unanswered.size(),
-              static_cast<unsigned long>(s.response.loop_closures_applied),
-              static_cast<unsigned long>(s.response.loop_closures_refused), probe.unanswered.size());
+  std::printf(
+      "keyframes %lu, constraints %lu, loop closures sent %zu, applied %lu, refused %lu, unanswered %zu\n",
+      static_cast<unsigned long>(s.response.keyframes), static_cast<unsigned long>(s.response.constraints),
+      probe.latencies.size() + probe.unanswered.size(),
+      static_cast<unsigned long>(s.response.loop_closures_applied),
+      static_cast<unsigned long>(s.response.loop_closures_refused), probe.unanswered.size());
   std::printf("queue: max seen %zu, at end %lu, dropped %lu\n", max_queue,
-              static_cast<unsigned long>(s.response.queue_length), static_cast<unsigned long>(s.response.queue_dropped));
-  std::printf("latency loop closure -> tf (ms), all: median %.1f  p99 %.1f  max %.1f  (n=%zu)\n", percentile(all, 0.5),
-              percentile(all, 0.99), all.empty() ? NAN : *std::max_element(all.begin(), all.end()), all.size());
-  std::printf("latency, last quarter (%zu..%zu keyframes): median %.1f  p99 %.1f  max %.1f  (n=%zu)\n", total * 3 / 4,
-              total, percentile(last_quarter, 0.5), percentile(last_quarter, 0.99),
+              static_cast<unsigned long>(s.response.queue_length),
+              static_cast<unsigned long>(s.response.queue_dropped));
+  std::printf("latency loop closure -> tf (ms), all: median %.1f  p99 %.1f  max %.1f  (n=%zu)\n",
+              percentile(all, 0.5), percentile(all, 0.99),
+              all.empty() ? NAN : *std::max_element(all.begin(), all.end()), all.size());
+  std::printf("latency, last quarter (%zu..%zu keyframes): median %.1f  p99 %.1f  max %.1f  (n=%zu)\n",
+              total * 3 / 4, total, percentile(last_quarter, 0.5), percentile(last_quarter, 0.99),
               last_quarter.empty() ? NAN : *std::max_element(last_quarter.begin(), last_quarter.end()),
               last_quarter.size());
   std::printf("node RSS: %ld KiB at start, %ld KiB at end: %.2f KiB per keyframe\n", rss_start, rss_end,

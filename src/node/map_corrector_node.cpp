@@ -22,7 +22,8 @@ NodeOptions loadOptions(const ros::NodeHandle& private_nh) {
   if (!private_nh.getParam(private_nh.getNamespace(), params)) params = XmlRpc::XmlRpcValue();
   OptionsReport report;
   const NodeOptions options = loadNodeOptions(params, &report);
-  for (const std::string& line : report.values) ROS_INFO_STREAM("  " << private_nh.getNamespace() << "/" << line);
+  for (const std::string& line : report.values)
+    ROS_INFO_STREAM("  " << private_nh.getNamespace() << "/" << line);
   for (const std::string& key : report.unknown_keys)
     ROS_WARN_STREAM("unknown parameter " << private_nh.getNamespace() << "/" << key
                                          << " (ignored; see config/map_corrector.yaml for the known keys)");
@@ -41,8 +42,8 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
       private_nh_(private_nh),
       options_(loadOptions(private_nh)),
       queue_(static_cast<std::size_t>(options_.queue_size)),
-      pipeline_(std::make_unique<Pipeline>(options_.pipeline,
-                                           [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); })),
+      pipeline_(std::make_unique<Pipeline>(
+          options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); })),
       diagnostics_(nh, private_nh) {
   snapshot_ = pipeline_->makeSnapshot();
   path_pub_ = private_nh_.advertise<nav_msgs::Path>(names::kPathTopic, 1, true);
@@ -54,19 +55,27 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
 
   ros::NodeHandle service_nh(private_nh_);
   service_nh.setCallbackQueue(&service_queue_);
-  services_.push_back(service_nh.advertiseService(names::kOptimizeService, &MapCorrectorNode::optimizeService, this));
-  services_.push_back(service_nh.advertiseService(names::kPauseService, &MapCorrectorNode::pauseService, this));
-  services_.push_back(service_nh.advertiseService(names::kResumeService, &MapCorrectorNode::resumeService, this));
-  services_.push_back(service_nh.advertiseService(names::kResetService, &MapCorrectorNode::resetService, this));
-  services_.push_back(service_nh.advertiseService(names::kSaveGraphService, &MapCorrectorNode::saveGraphService, this));
-  services_.push_back(service_nh.advertiseService(names::kLoadGraphService, &MapCorrectorNode::loadGraphService, this));
-  services_.push_back(service_nh.advertiseService(names::kGetStatusService, &MapCorrectorNode::getStatusService, this));
+  services_.push_back(
+      service_nh.advertiseService(names::kOptimizeService, &MapCorrectorNode::optimizeService, this));
+  services_.push_back(
+      service_nh.advertiseService(names::kPauseService, &MapCorrectorNode::pauseService, this));
+  services_.push_back(
+      service_nh.advertiseService(names::kResumeService, &MapCorrectorNode::resumeService, this));
+  services_.push_back(
+      service_nh.advertiseService(names::kResetService, &MapCorrectorNode::resetService, this));
+  services_.push_back(
+      service_nh.advertiseService(names::kSaveGraphService, &MapCorrectorNode::saveGraphService, this));
+  services_.push_back(
+      service_nh.advertiseService(names::kLoadGraphService, &MapCorrectorNode::loadGraphService, this));
+  services_.push_back(
+      service_nh.advertiseService(names::kGetStatusService, &MapCorrectorNode::getStatusService, this));
   service_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &service_queue_);
   service_spinner_->start();
 
   ros::NodeHandle tf_nh(nh_);
   tf_nh.setCallbackQueue(&tf_queue_);
-  tf_timer_ = tf_nh.createTimer(ros::Duration(1.0 / options_.tf_rate_hz), &MapCorrectorNode::tfTimerCallback, this);
+  tf_timer_ =
+      tf_nh.createTimer(ros::Duration(1.0 / options_.tf_rate_hz), &MapCorrectorNode::tfTimerCallback, this);
   tf_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &tf_queue_);
   tf_spinner_->start();
 
@@ -97,7 +106,8 @@ void MapCorrectorNode::subscribeInputs() {
     using M = MessageOf<decltype(handler)>;
     const boost::function<void(const boost::shared_ptr<const M>&)> callback =
         [this, topic](const boost::shared_ptr<const M>& msg) { enqueue<M>(msg, topic); };
-    input_subs_.push_back(nh_.subscribe<M>(topic, 100, callback, ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay()));
+    input_subs_.push_back(
+        nh_.subscribe<M>(topic, 100, callback, ros::VoidConstPtr(), ros::TransportHints().tcpNoDelay()));
     ROS_INFO_STREAM("map corrector: listening on " << input_subs_.back().getTopic());
   });
 }
@@ -106,14 +116,16 @@ template <class M>
 void MapCorrectorNode::enqueue(const boost::shared_ptr<const M>& msg, const char* what) {
   checkFrame(*msg);
   // Never blocks: a full queue drops the message and counts it (diagnostics, ~get_status).
-  if (!queue_.push(Item(PipelineMessage(msg)))) ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, %s message dropped", what);
+  if (!queue_.push(Item(PipelineMessage(msg))))
+    ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, %s message dropped", what);
 }
 
 void MapCorrectorNode::checkFrame(const nav_msgs::Odometry& msg) {
-  if (!msg.header.frame_id.empty() && msg.header.frame_id != options_.odom_frame && !warned_frame_.exchange(true))
-    ROS_WARN_STREAM("map corrector: odometry in frame '" << msg.header.frame_id << "' but odom_frame is '"
-                                                         << options_.odom_frame << "'; map->"
-                                                         << options_.odom_frame << " is published regardless");
+  if (!msg.header.frame_id.empty() && msg.header.frame_id != options_.odom_frame &&
+      !warned_frame_.exchange(true))
+    ROS_WARN_STREAM("map corrector: odometry in frame '"
+                    << msg.header.frame_id << "' but odom_frame is '" << options_.odom_frame << "'; map->"
+                    << options_.odom_frame << " is published regardless");
 }
 
 void MapCorrectorNode::process(Item& item) {

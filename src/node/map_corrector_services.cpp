@@ -16,7 +16,8 @@ std::optional<R> MapCorrectorNode::runOnWorker(std::function<R(Pipeline&)> f) {
     // Commands change the map (reset, load, optimise): publish at once, not at the next message.
     publishSnapshot();
   }));
-  if (result.wait_for(std::chrono::duration<double>(options_.service_timeout_sec)) != std::future_status::ready)
+  if (result.wait_for(std::chrono::duration<double>(options_.service_timeout_sec)) !=
+      std::future_status::ready)
     return std::nullopt;
   return result.get();
 }

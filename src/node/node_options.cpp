@@ -13,16 +13,22 @@ class ParamReader {
   ParamReader(const XmlRpc::XmlRpcValue& params, OptionsReport* report) : params_(params), report_(report) {}
 
   void read(const char* key, double& v) {
-    readWith(key, v, [&](const XmlRpc::XmlRpcValue& x) {
-      if (x.getType() == XmlRpc::XmlRpcValue::TypeDouble) return v = static_cast<double>(x), true;
-      if (x.getType() == XmlRpc::XmlRpcValue::TypeInt) return v = static_cast<int>(x), true;
-      return false;
-    }, "a number");
+    readWith(
+        key, v,
+        [&](const XmlRpc::XmlRpcValue& x) {
+          if (x.getType() == XmlRpc::XmlRpcValue::TypeDouble) return v = static_cast<double>(x), true;
+          if (x.getType() == XmlRpc::XmlRpcValue::TypeInt) return v = static_cast<int>(x), true;
+          return false;
+        },
+        "a number");
   }
   void read(const char* key, int& v) {
-    readWith(key, v, [&](const XmlRpc::XmlRpcValue& x) {
-      return x.getType() == XmlRpc::XmlRpcValue::TypeInt ? (v = static_cast<int>(x), true) : false;
-    }, "an integer");
+    readWith(
+        key, v,
+        [&](const XmlRpc::XmlRpcValue& x) {
+          return x.getType() == XmlRpc::XmlRpcValue::TypeInt ? (v = static_cast<int>(x), true) : false;
+        },
+        "an integer");
   }
   void read(const char* key, std::size_t& v) {
     int i = static_cast<int>(v);
@@ -31,14 +37,21 @@ class ParamReader {
     v = static_cast<std::size_t>(std::max(i, 0));
   }
   void read(const char* key, bool& v) {
-    readWith(key, v, [&](const XmlRpc::XmlRpcValue& x) {
-      return x.getType() == XmlRpc::XmlRpcValue::TypeBoolean ? (v = static_cast<bool>(x), true) : false;
-    }, "true or false");
+    readWith(
+        key, v,
+        [&](const XmlRpc::XmlRpcValue& x) {
+          return x.getType() == XmlRpc::XmlRpcValue::TypeBoolean ? (v = static_cast<bool>(x), true) : false;
+        },
+        "true or false");
   }
   void read(const char* key, std::string& v) {
-    readWith(key, v, [&](const XmlRpc::XmlRpcValue& x) {
-      return x.getType() == XmlRpc::XmlRpcValue::TypeString ? (v = static_cast<std::string>(x), true) : false;
-    }, "a string");
+    readWith(
+        key, v,
+        [&](const XmlRpc::XmlRpcValue& x) {
+          return x.getType() == XmlRpc::XmlRpcValue::TypeString ? (v = static_cast<std::string>(x), true)
+                                                                : false;
+        },
+        "a string");
   }
 
   void finish() {
@@ -77,11 +90,13 @@ void readPipeline(ParamReader& r, PipelineOptions& p, OptionsReport* report) {
   if (auto m = odometryCovarianceModeFromString(mode))
     p.keyframer.covariance_mode = *m;
   else
-    report->errors.push_back("odometry_covariance_mode: expected difference, latest or default, got '" + mode + "'");
+    report->errors.push_back("odometry_covariance_mode: expected difference, latest or default, got '" +
+                             mode + "'");
   r.read("odometry_default_translation_stddev_m", p.keyframer.default_stddev.translation_m);
   r.read("odometry_default_rotation_stddev_rad", p.keyframer.default_stddev.rotation_rad);
   r.read("loop_closure_stamp_tolerance_sec", p.matcher.stamp_tolerance_sec);
   r.read("loop_closure_max_pending", p.matcher.max_pending);
+  r.read("loop_closure_creates_keyframes", p.matcher.create_keyframes);
   r.read("loop_closure_default_translation_stddev_m", p.loop_closure_default_stddev.translation_m);
   r.read("loop_closure_default_rotation_stddev_rad", p.loop_closure_default_stddev.rotation_rad);
   r.read("optimization_gamma", p.optimization.gamma);
@@ -100,10 +115,13 @@ std::string NodeOptions::validate() const {
   if (!(tf_rate_hz > 0 && std::isfinite(tf_rate_hz))) return "tf_rate_hz must be > 0";
   if (!(transform_tolerance_sec >= 0 && std::isfinite(transform_tolerance_sec)))
     return "transform_tolerance_sec must be >= 0";
-  if (!(visualization_rate_hz > 0 && std::isfinite(visualization_rate_hz))) return "visualization_rate_hz must be > 0";
-  if (!(diagnostics_rate_hz > 0 && std::isfinite(diagnostics_rate_hz))) return "diagnostics_rate_hz must be > 0";
+  if (!(visualization_rate_hz > 0 && std::isfinite(visualization_rate_hz)))
+    return "visualization_rate_hz must be > 0";
+  if (!(diagnostics_rate_hz > 0 && std::isfinite(diagnostics_rate_hz)))
+    return "diagnostics_rate_hz must be > 0";
   if (queue_size <= 0) return "queue_size must be > 0";
-  if (!(service_timeout_sec > 0 && std::isfinite(service_timeout_sec))) return "service_timeout_sec must be > 0";
+  if (!(service_timeout_sec > 0 && std::isfinite(service_timeout_sec)))
+    return "service_timeout_sec must be > 0";
   const std::string p = pipeline.validate();
   return p.empty() ? markers.validate() : p;
 }

@@ -13,9 +13,12 @@ std::optional<OdometryCovarianceMode> odometryCovarianceModeFromString(const std
 
 std::string toString(OdometryCovarianceMode mode) {
   switch (mode) {
-    case OdometryCovarianceMode::kDifference: return "difference";
-    case OdometryCovarianceMode::kLatest: return "latest";
-    case OdometryCovarianceMode::kDefault: return "default";
+    case OdometryCovarianceMode::kDifference:
+      return "difference";
+    case OdometryCovarianceMode::kLatest:
+      return "latest";
+    case OdometryCovarianceMode::kDefault:
+      return "default";
   }
   return "?";
 }
@@ -55,7 +58,8 @@ InformationResult Keyframer::stepInformation(const OdometrySample& older, const 
       return informationFromCovariance(toBodyFrame(newer.covariance - older.covariance, newer.odom_T_base),
                                        options_.default_stddev);
     case OdometryCovarianceMode::kLatest:
-      return informationFromCovariance(toBodyFrame(newer.covariance, newer.odom_T_base), options_.default_stddev);
+      return informationFromCovariance(toBodyFrame(newer.covariance, newer.odom_T_base),
+                                       options_.default_stddev);
     case OdometryCovarianceMode::kDefault:
       break;
   }
@@ -67,7 +71,8 @@ InformationResult Keyframer::stepInformation(const OdometrySample& older, const 
 std::optional<OdometryStep> Keyframer::accept(const OdometrySample& sample) {
   std::optional<OdometryStep> step;
   if (last_) {
-    step = OdometryStep{toro::relativePose(last_->odom_T_base, sample.odom_T_base), stepInformation(*last_, sample)};
+    step = OdometryStep{toro::relativePose(last_->odom_T_base, sample.odom_T_base),
+                        stepInformation(*last_, sample)};
   }
   last_ = sample;
   return step;

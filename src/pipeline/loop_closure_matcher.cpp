@@ -75,7 +75,8 @@ MatchResult LoopClosureMatcher::matchNow(const LoopClosure& msg, const KeyframeI
   MatchResult r;
   if (byId(msg)) {
     for (toro::NodeId id : {msg.id_from, msg.id_to})
-      if (index.find(id) == nullptr) return refused(refusal::kUnknownId, "no keyframe has id " + std::to_string(id));
+      if (index.find(id) == nullptr)
+        return refused(refusal::kUnknownId, "no keyframe has id " + std::to_string(id));
     r.from = msg.id_from;
     r.to = msg.id_to;
   } else {
@@ -83,7 +84,8 @@ MatchResult LoopClosureMatcher::matchNow(const LoopClosure& msg, const KeyframeI
     const auto to = index.nearest(msg.stamp_to, options_.stamp_tolerance_sec);
     for (const auto& [id, stamp] : {std::pair{from, msg.stamp_from}, std::pair{to, msg.stamp_to}})
       if (!id)
-        return refused(refusal::kNoKeyframe, "no keyframe within " + std::to_string(options_.stamp_tolerance_sec) +
+        return refused(refusal::kNoKeyframe, "no keyframe within " +
+                                                 std::to_string(options_.stamp_tolerance_sec) +
                                                  " s of stamp " + stampString(stamp));
     if (*from == *to)
       return refused(refusal::kSameKeyframe, "stamps " + stampString(msg.stamp_from) + " and " +
@@ -110,8 +112,8 @@ MatchResult LoopClosureMatcher::submit(const LoopClosure& msg, const KeyframeInd
   return r;
 }
 
-std::vector<std::pair<LoopClosure, MatchResult>> LoopClosureMatcher::release(const KeyframeIndex& index,
-                                                                             const ros::Time& newest_odometry) {
+std::vector<std::pair<LoopClosure, MatchResult>> LoopClosureMatcher::release(
+    const KeyframeIndex& index, const ros::Time& newest_odometry) {
   std::vector<std::pair<LoopClosure, MatchResult>> out;
   // Keep arrival order among the released ones so results do not depend on the list's layout.
   std::deque<LoopClosure> still;

@@ -21,7 +21,8 @@ bool pointFinite(const geometry_msgs::Point& p) {
 
 std::string validatePose(const geometry_msgs::Pose& pose) {
   if (!pointFinite(pose.position)) return "position is not finite";
-  if (!quaternionUsable(pose.orientation)) return "orientation is not a usable quaternion (zero or not finite)";
+  if (!quaternionUsable(pose.orientation))
+    return "orientation is not a usable quaternion (zero or not finite)";
   return "";
 }
 
@@ -88,7 +89,8 @@ InformationResult informationFromCovariance(const toro::Matrix6& cov, const Defa
   if (!cov.allFinite()) return fallback("covariance is not finite");
   if (cov.cwiseAbs().maxCoeff() == 0.0) return fallback("covariance is zero");
   const double scale = cov.cwiseAbs().maxCoeff();
-  if ((cov - cov.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) return fallback("covariance is not symmetric");
+  if ((cov - cov.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale)
+    return fallback("covariance is not symmetric");
   const toro::Matrix6 sym = 0.5 * (cov + cov.transpose());
   Eigen::LLT<toro::Matrix6> llt(sym);
   // A tiny smallest eigenvalue relative to the largest gives an information of ~1e12 on a direction

@@ -18,8 +18,8 @@ void writeSidecar(const std::string& path, const Sidecar& sidecar) {
   for (const KeyframeRecord& k : sidecar.keyframes) {
     const auto& t = k.odom_T_base.translation();
     const auto& q = k.odom_T_base.rotation();
-    out << "KEYFRAME " << k.id << ' ' << k.stamp.sec << ' ' << k.stamp.nsec << ' ' << t.x() << ' ' << t.y() << ' '
-        << t.z() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' ' << q.w() << '\n';
+    out << "KEYFRAME " << k.id << ' ' << k.stamp.sec << ' ' << k.stamp.nsec << ' ' << t.x() << ' ' << t.y()
+        << ' ' << t.z() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' ' << q.w() << '\n';
   }
   for (std::size_t c : sidecar.loop_closures) out << "LOOP_CLOSURE " << c << '\n';
   if (!out) throw std::runtime_error(path + ": write failed");

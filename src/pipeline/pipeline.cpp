@@ -41,16 +41,18 @@ std::string OptimizationOptions::validate() const {
   if (!(std::isfinite(gamma) && gamma > 0)) return "optimization gamma must be > 0";
   if (full_iterations < 0) return "optimization full_iterations must be >= 0";
   if (full_every_keyframes < 0) return "optimization full_every_keyframes must be >= 0";
-  if (!(std::isfinite(full_every_sec) && full_every_sec >= 0)) return "optimization full_every_sec must be >= 0";
+  if (!(std::isfinite(full_every_sec) && full_every_sec >= 0))
+    return "optimization full_every_sec must be >= 0";
   if (service_default_iterations <= 0) return "optimization service_default_iterations must be > 0";
   return "";
 }
 
 std::string PipelineOptions::validate() const {
-  for (const std::string& e : {keyframer.validate(), matcher.validate(), loop_closure_default_stddev.validate(),
-                               optimization.validate()})
+  for (const std::string& e : {keyframer.validate(), matcher.validate(),
+                               loop_closure_default_stddev.validate(), optimization.validate()})
     if (!e.empty()) return e;
-  if (!(std::isfinite(time_jump_reset_sec) && time_jump_reset_sec >= 0)) return "time_jump_reset_sec must be >= 0";
+  if (!(std::isfinite(time_jump_reset_sec) && time_jump_reset_sec >= 0))
+    return "time_jump_reset_sec must be >= 0";
   return "";
 }
 
@@ -89,8 +91,9 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
     const double back = (newest_odometry_ - stamp).toSec();
     if (back > options_.time_jump_reset_sec) {
       ++counters_.time_jump_resets;
-      reset("odometry stamp " + stampString(stamp) + " is " + std::to_string(back) + " s before the newest (" +
-            stampString(newest_odometry_) + "): time jumped back (bag restarted?), graph reset");
+      reset("odometry stamp " + stampString(stamp) + " is " + std::to_string(back) +
+            " s before the newest (" + stampString(newest_odometry_) +
+            "): time jumped back (bag restarted?), graph reset");
     } else {
       ++counters_.odometry_refused;
       refuse("odometry: out of order", "odometry at " + stampString(stamp) + " is not after the newest " +
@@ -100,7 +103,8 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
   }
   newest_odometry_ = stamp;
   last_odometry_ = OdometrySample{stamp, poseFromMsg(msg.pose.pose), covarianceMatrix(msg.pose.covariance)};
-  if (keyframer_.isKeyframe(*last_odometry_) || matcher_.wantsKeyframeAt(stamp, keyframes_))
+  if (keyframer_.isKeyframe(*last_odometry_) ||
+      (options_.matcher.create_keyframes && matcher_.wantsKeyframeAt(stamp, keyframes_)))
     addKeyframe(*last_odometry_);
   releasePending();
 }
@@ -119,7 +123,8 @@ void Pipeline::addKeyframe(const OdometrySample& sample) {
   if (last_full_stamp_.isZero()) last_full_stamp_ = sample.stamp;
   ++keyframes_since_full_;
   if (!step) return;
-  if (step->information.used_default && options_.keyframer.covariance_mode != OdometryCovarianceMode::kDefault)
+  if (step->information.used_default &&
+      options_.keyframer.covariance_mode != OdometryCovarianceMode::kDefault)
     ++counters_.refused_by_reason["odometry: covariance unusable, default used"];
   toro::Constraint c{previous, id, step->previous_T_current, step->information.information};
   optimizer_.addConstraint(c);  // endpoints exist and the information is SPD by construction
@@ -127,7 +132,7 @@ void Pipeline::addKeyframe(const OdometrySample& sample) {
 }
 
 void Pipeline::keyframeForStamps(const LoopClosure& msg) {
-  if (msg.id_from >= 0 && msg.id_to >= 0) return;
+  if (!options_.matcher.create_keyframes || (msg.id_from >= 0 && msg.id_to >= 0)) return;
   if (!last_odometry_ || (!keyframes_.empty() && keyframes_.newest().stamp >= last_odometry_->stamp)) return;
   for (const ros::Time& s : {msg.stamp_from, msg.stamp_to}) {
     // A loop closure about "now" (the usual case for a place recogniser) should not wait for the
@@ -150,7 +155,8 @@ void Pipeline::handleLoopClosure(const LoopClosure& msg) {
 }
 
 void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match) {
-  const InformationResult info = informationFromCovariance(msg.covariance, options_.loop_closure_default_stddev);
+  const InformationResult info =
+      informationFromCovariance(msg.covariance, options_.loop_closure_default_stddev);
   toro::Constraint c{match.from, match.to, poseFromMsg(msg.from_T_to), info.information};
   try {
     optimizer_.addConstraint(c);
@@ -205,7 +211,8 @@ bool Pipeline::runScheduledOptimization() {
     const auto& o = options_.optimization;
     const bool by_count = o.full_every_keyframes > 0 &&
                           keyframes_since_full_ >= static_cast<std::size_t>(o.full_every_keyframes);
-    const bool by_time = o.full_every_sec > 0 && (newest_odometry_ - last_full_stamp_).toSec() >= o.full_every_sec;
+    const bool by_time =
+        o.full_every_sec > 0 && (newest_odometry_ - last_full_stamp_).toSec() >= o.full_every_sec;
     if (by_count || by_time) {
       // Restart the learning-rate schedule: the graph changed since the last round, and a rate
       // decayed over the whole run would leave new loop closures uncorrected.
@@ -246,8 +253,8 @@ OptimizeResult Pipeline::finish(unsigned iterations) {
     r.chi2_after = report.final_chi2;
     r.time_sec = report.seconds;
     r.iterations = static_cast<int>(report.iterations);
-    r.message = std::to_string(report.iterations) + " Levenberg-Marquardt iterations, stopped: " +
-                toro::finishStopName(report.stop);
+    r.message = std::to_string(report.iterations) +
+                " Levenberg-Marquardt iterations, stopped: " + toro::finishStopName(report.stop);
   } catch (const std::exception& e) {
     r.message = std::string("finish failed: ") + e.what();
     return r;
@@ -273,7 +280,8 @@ OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) 
   full_passes_left_ = 0;
   loop_closures_since_full_ = 0;
   if (mode == "finish") return finish(iterations);
-  r.iterations = iterations > 0 ? static_cast<int>(iterations) : options_.optimization.service_default_iterations;
+  r.iterations =
+      iterations > 0 ? static_cast<int>(iterations) : options_.optimization.service_default_iterations;
   r.chi2_before = toro::g2oChi2(optimizer_.graph());
   optimizer_.setIteration(0);
   r.time_sec = timed([&] {
@@ -334,7 +342,8 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
   for (std::size_t c = 0; c < g.numConstraints(); ++c) {
     const toro::Constraint& k = g.constraints()[c];
     const bool lc = is_loop_closure_[c];
-    s->edges.push_back(SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0});
+    s->edges.push_back(
+        SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0});
   }
   if (!records.empty()) {
     s->has_map_T_odom = true;

@@ -33,7 +33,8 @@ std::string checkSidecar(const Sidecar& s, const toro::PoseGraph& graph) {
       return "sidecar keyframe " + std::to_string(i) + " has id " + std::to_string(s.keyframes[i].id) +
              ", the graph node " + std::to_string(graph.node(i).id);
   for (std::size_t c : s.loop_closures)
-    if (c >= graph.numConstraints()) return "sidecar names loop closure " + std::to_string(c) + " beyond the graph";
+    if (c >= graph.numConstraints())
+      return "sidecar names loop closure " + std::to_string(c) + " beyond the graph";
   return "";
 }
 

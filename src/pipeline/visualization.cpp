@@ -26,7 +26,8 @@ std_msgs::ColorRGBA rgba(float r, float g, float b, float a = 1.0f) {
   return c;
 }
 
-visualization_msgs::Marker baseMarker(const std::string& frame, const ros::Time& stamp, const char* ns, int type) {
+visualization_msgs::Marker baseMarker(const std::string& frame, const ros::Time& stamp, const char* ns,
+                                      int type) {
   visualization_msgs::Marker m;
   m.header.frame_id = frame;
   m.header.stamp = stamp;
@@ -56,7 +57,8 @@ std_msgs::ColorRGBA residualColour(double chi2, double chi2_red) {
   return rgba(r, g, 0.0f);
 }
 
-nav_msgs::Path pathFromSnapshot(const Snapshot& snapshot, const std::string& map_frame, const ros::Time& stamp) {
+nav_msgs::Path pathFromSnapshot(const Snapshot& snapshot, const std::string& map_frame,
+                                const ros::Time& stamp) {
   nav_msgs::Path path;
   path.header.frame_id = map_frame;
   path.header.stamp = stamp;

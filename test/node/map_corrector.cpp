@@ -1,6 +1,7 @@
 // rostest client for map_corrector_node under simulated time.  It publishes /clock itself, the
 // drifting square of test/pipeline/drift_scenario.h and loop closures, and checks what the node
 // publishes and answers.  The tests run in declaration order and share the node's state.
+#include <unistd.h>
 #include <atomic>
 #include <condition_variable>
 #include <fstream>
@@ -8,15 +9,14 @@
 #include <mutex>
 #include <sstream>
 #include <thread>
-#include <unistd.h>
 
+#include <diagnostic_msgs/DiagnosticArray.h>
 #include <gtest/gtest.h>
 #include <nav_msgs/Path.h>
 #include <ros/ros.h>
 #include <rosgraph_msgs/Clock.h>
 #include <std_srvs/Trigger.h>
 #include <tf2_msgs/TFMessage.h>
-#include <diagnostic_msgs/DiagnosticArray.h>
 #include <visualization_msgs/MarkerArray.h>
 
 #include "../pipeline/drift_scenario.h"
@@ -88,14 +88,16 @@ class Client {
   // Waits on the subscriptions' condition variable.
   bool waitObserved(const std::function<bool(const Observed&)>& pred, double timeout_sec = kTimeoutSec) {
     std::unique_lock<std::mutex> lock(observed.mutex);
-    return observed.cv.wait_for(lock, std::chrono::duration<double>(timeout_sec), [&] { return pred(observed); });
+    return observed.cv.wait_for(lock, std::chrono::duration<double>(timeout_sec),
+                                [&] { return pred(observed); });
   }
 
   bool connect() {
     return waitFor([&] {
-      return odom_pub_.getNumSubscribers() > 0 && loop_pub_.getNumSubscribers() > 0 &&
-             path_sub_.getNumPublishers() > 0 && markers_sub_.getNumPublishers() > 0;
-    }) && ros::service::waitForService("/map_corrector/get_status", ros::Duration(kTimeoutSec));
+             return odom_pub_.getNumSubscribers() > 0 && loop_pub_.getNumSubscribers() > 0 &&
+                    path_sub_.getNumPublishers() > 0 && markers_sub_.getNumPublishers() > 0;
+           }) &&
+           ros::service::waitForService("/map_corrector/get_status", ros::Duration(kTimeoutSec));
   }
 
   void publishOdometry(const nav_msgs::Odometry& m) {
@@ -177,7 +179,6 @@ double newestError(const geometry_msgs::Transform& map_T_odom) {
   return ((poseOf(map_T_odom) * odom_T_base).translation() - scenario.truth.back().translation()).norm();
 }
 
-
 std::uint64_t refusedCount(const GetStatus::Response& s, const std::string& reason) {
   for (std::size_t i = 0; i < s.refused_reasons.size(); ++i)
     if (s.refused_reasons[i] == reason) return s.refused_counts[i];
@@ -220,7 +221,8 @@ TEST(MapCorrector, LoopClosureCorrectsMapToOdomOnTf) {
   EXPECT_TRUE(client->waitObserved([&](const Observed& o) {
     corrected = newestError(o.map_T_odom->transform);
     return corrected < 0.1 * raw_error;
-  })) << "raw " << raw_error << " corrected " << corrected;
+  })) << "raw "
+      << raw_error << " corrected " << corrected;
 }
 
 TEST(MapCorrector, PathAndMarkersShowTheCorrectedGraph) {
@@ -316,7 +318,8 @@ TEST(MapCorrector, SaveResetLoadGivesTheSameGraph) {
   }
   const Sidecar sa = readSidecar(sidecarPath(first)), sb = readSidecar(sidecarPath(second));
   ASSERT_EQ(sa.keyframes.size(), sb.keyframes.size());
-  for (std::size_t i = 0; i < sa.keyframes.size(); ++i) EXPECT_EQ(sa.keyframes[i].stamp, sb.keyframes[i].stamp);
+  for (std::size_t i = 0; i < sa.keyframes.size(); ++i)
+    EXPECT_EQ(sa.keyframes[i].stamp, sb.keyframes[i].stamp);
   EXPECT_EQ(sa.loop_closures, sb.loop_closures);
 }
 
@@ -325,7 +328,8 @@ TEST(MapCorrector, UnknownStampRefusedFutureStampAppliedWhenOdometryArrives) {
   LoopClosure unknown = toro_ros::testing::trueLoopClosure(scenario, 0, 10);
   unknown.stamp_from = ros::Time(20.0);
   client->publishLoopClosure(unknown);
-  ASSERT_TRUE(Client::waitFor([&] { return client->status().loop_closures_refused == before.loop_closures_refused + 1; }));
+  ASSERT_TRUE(Client::waitFor(
+      [&] { return client->status().loop_closures_refused == before.loop_closures_refused + 1; }));
   EXPECT_EQ(refusedCount(client->status(), "loop closure: no keyframe within tolerance"),
             refusedCount(before, "loop closure: no keyframe within tolerance") + 1);
 
@@ -334,8 +338,9 @@ TEST(MapCorrector, UnknownStampRefusedFutureStampAppliedWhenOdometryArrives) {
   const toro::Pose3 end_pose = poseFromMsg(end.pose.pose);
   std::vector<nav_msgs::Odometry> more;
   for (int i = 1; i <= 30; ++i)
-    more.push_back(toro_ros::testing::odometryMsg(end.header.stamp + ros::Duration(0.1 * i),
-                                        end_pose * toro::Pose3::fromRollPitchYaw(0.1 * i, 0, 0, 0, 0, 0)));
+    more.push_back(
+        toro_ros::testing::odometryMsg(end.header.stamp + ros::Duration(0.1 * i),
+                                       end_pose * toro::Pose3::fromRollPitchYaw(0.1 * i, 0, 0, 0, 0, 0)));
   LoopClosure future;
   future.id_from = future.id_to = -1;
   future.stamp_from = scenario.odometry.front().header.stamp;
@@ -355,7 +360,8 @@ TEST(MapCorrector, UnknownStampRefusedFutureStampAppliedWhenOdometryArrives) {
 TEST(MapCorrector, TimeJumpBackResetsTheGraph) {
   const GetStatus::Response before = client->status();
   client->publishOdometry(toro_ros::testing::odometryMsg(ros::Time(30.0), toro::Pose3()));
-  EXPECT_TRUE(Client::waitFor([&] { return client->status().time_jump_resets == before.time_jump_resets + 1; }));
+  EXPECT_TRUE(
+      Client::waitFor([&] { return client->status().time_jump_resets == before.time_jump_resets + 1; }));
   EXPECT_EQ(client->status().keyframes, 1u);
 }
 

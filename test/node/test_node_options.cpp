@@ -65,9 +65,11 @@ TEST(NodeOptions, ShippedConfigValuesAreTheDefaults) {
   EXPECT_EQ(loaded.pipeline.keyframer.distance_m, defaults.pipeline.keyframer.distance_m);
   EXPECT_EQ(loaded.pipeline.keyframer.covariance_mode, defaults.pipeline.keyframer.covariance_mode);
   EXPECT_EQ(loaded.pipeline.matcher.max_pending, defaults.pipeline.matcher.max_pending);
+  EXPECT_EQ(loaded.pipeline.matcher.create_keyframes, defaults.pipeline.matcher.create_keyframes);
   EXPECT_EQ(loaded.pipeline.loop_closure_default_stddev.rotation_rad,
             defaults.pipeline.loop_closure_default_stddev.rotation_rad);
-  EXPECT_EQ(loaded.pipeline.optimization.full_every_keyframes, defaults.pipeline.optimization.full_every_keyframes);
+  EXPECT_EQ(loaded.pipeline.optimization.full_every_keyframes,
+            defaults.pipeline.optimization.full_every_keyframes);
   EXPECT_EQ(loaded.markers.draw_odometry_edges, defaults.markers.draw_odometry_edges);
   // Every value line of the report says "(default)" only when the key is missing: none here.
   for (const std::string& line : report.values) EXPECT_EQ(line.find("(default)"), std::string::npos) << line;

@@ -62,8 +62,8 @@ inline DriftScenario makeDriftingSquare(int laps = 2, double side_m = 4.0, doubl
 }
 
 // Loop closure between samples i and j (by stamp) with the true relative pose.
-inline LoopClosure trueLoopClosure(const DriftScenario& s, std::size_t i, std::size_t j, double stddev_m = 0.02,
-                                   double stddev_rad = 0.01) {
+inline LoopClosure trueLoopClosure(const DriftScenario& s, std::size_t i, std::size_t j,
+                                   double stddev_m = 0.02, double stddev_rad = 0.01) {
   LoopClosure lc;
   lc.header.stamp = s.odometry[j].header.stamp;
   lc.stamp_from = s.odometry[i].header.stamp;

@@ -7,7 +7,8 @@ using namespace toro_ros;
 namespace {
 
 OdometrySample sample(double t, double x, double yaw) {
-  return OdometrySample{ros::Time(t), toro::Pose3::fromRollPitchYaw(x, 0, 0, 0, 0, yaw), toro::Matrix6::Zero()};
+  return OdometrySample{ros::Time(t), toro::Pose3::fromRollPitchYaw(x, 0, 0, 0, 0, yaw),
+                        toro::Matrix6::Zero()};
 }
 
 KeyframerOptions options() {
@@ -46,7 +47,8 @@ TEST(Keyframer, ThresholdsAreRelativeToTheLastKeyframeInItsFrame) {
   Keyframer k(options());
   k.accept(sample(1, 10, 1.0));
   // 0.4 m ahead in the keyframe's own heading: no keyframe although the x coordinate changed little.
-  const toro::Pose3 ahead = toro::Pose3::fromRollPitchYaw(10, 0, 0, 0, 0, 1.0) * toro::Pose3::fromRollPitchYaw(0.4, 0, 0, 0, 0, 0);
+  const toro::Pose3 ahead =
+      toro::Pose3::fromRollPitchYaw(10, 0, 0, 0, 0, 1.0) * toro::Pose3::fromRollPitchYaw(0.4, 0, 0, 0, 0, 0);
   EXPECT_FALSE(k.isKeyframe(OdometrySample{ros::Time(2), ahead, toro::Matrix6::Zero()}));
 }
 
@@ -55,7 +57,8 @@ TEST(Keyframer, StepIsTheRelativeOdometry) {
   k.accept(sample(1, 1, 0.5));
   const auto step = k.accept(sample(2, 3, 0.7));
   ASSERT_TRUE(step.has_value());
-  const toro::Pose3 expected = toro::relativePose(sample(1, 1, 0.5).odom_T_base, sample(2, 3, 0.7).odom_T_base);
+  const toro::Pose3 expected =
+      toro::relativePose(sample(1, 1, 0.5).odom_T_base, sample(2, 3, 0.7).odom_T_base);
   EXPECT_NEAR((step->previous_T_current.translation() - expected.translation()).norm(), 0, 1e-12);
   EXPECT_NEAR(step->previous_T_current.rollPitchYaw().z(), 0.2, 1e-12);
   EXPECT_TRUE(step->information.used_default);  // zero covariances

@@ -48,7 +48,8 @@ TEST(MsgConversion, DiagonalCovarianceGivesCoreUnits) {
 TEST(MsgConversion, FullCovarianceScalesBlocksByTwoAndFour) {
   // A random SPD covariance: information in core units must be D Sigma^-1 D with D = diag(1,1,1,2,2,2).
   toro::Matrix6 a;
-  a << 1, 2, 0, 1, 0, 3, 0, 1, 1, 0, 2, 1, 2, 0, 3, 1, 1, 0, 1, 1, 0, 2, 0, 1, 0, 3, 1, 1, 2, 0, 1, 0, 2, 0, 1, 2;
+  a << 1, 2, 0, 1, 0, 3, 0, 1, 1, 0, 2, 1, 2, 0, 3, 1, 1, 0, 1, 1, 0, 2, 0, 1, 0, 3, 1, 1, 2, 0, 1, 0, 2, 0,
+      1, 2;
   const toro::Matrix6 cov = 0.01 * (a * a.transpose() + toro::Matrix6::Identity());
   const InformationResult r = informationFromCovariance(cov, DefaultStddev{});
   ASSERT_FALSE(r.used_default) << r.reason;
@@ -64,7 +65,8 @@ TEST(MsgConversion, ConvertedInformationGivesMahalanobisChi2InTheCore) {
   toro::PoseGraph g;
   g.addNode(0, toro::Pose3());
   g.addNode(1, toro::Pose3::fromRollPitchYaw(0, 0, 0, delta, 0, 0));
-  g.addConstraint({0, 1, toro::Pose3(), informationFromCovariance(diagonal(1.0, sigma * sigma), {}).information});
+  g.addConstraint(
+      {0, 1, toro::Pose3(), informationFromCovariance(diagonal(1.0, sigma * sigma), {}).information});
   EXPECT_NEAR(toro::g2oChi2(g), (delta / sigma) * (delta / sigma), 1e-3);
 }
 

@@ -1,7 +1,7 @@
+#include <unistd.h>
 #include <cstdio>
 #include <iostream>
 #include <string>
-#include <unistd.h>
 
 #include <gtest/gtest.h>
 
@@ -59,7 +59,8 @@ TEST(Pipeline, InvalidOptionsThrowWithTheReason) {
 TEST(Pipeline, KeyframesAreConsecutiveIdsWithOdometryConstraints) {
   Pipeline p(options());
   for (int i = 0; i <= 30; ++i)
-    p.handleOdometry(odometryMsg(ros::Time(10 + 0.1 * i), toro::Pose3::fromRollPitchYaw(0.1 * i, 0, 0, 0, 0, 0)));
+    p.handleOdometry(
+        odometryMsg(ros::Time(10 + 0.1 * i), toro::Pose3::fromRollPitchYaw(0.1 * i, 0, 0, 0, 0, 0)));
   // 3 m at 0.5 m (strictly more than) per keyframe: 0, 0.6, 1.2, 1.8, 2.4, 3.0 -> 6 keyframes.
   ASSERT_EQ(p.keyframes().size(), 6u);
   for (std::size_t i = 0; i < 6; ++i) EXPECT_EQ(p.keyframes().records()[i].id, static_cast<toro::NodeId>(i));
@@ -79,7 +80,8 @@ TEST(Pipeline, MapToOdomIsCorrectedNewestTimesInverseOdometry) {
   EXPECT_NEAR(s->map_T_odom.angle(), 0, 1e-12);
 
   for (int i = 1; i <= 20; ++i)
-    p.handleOdometry(odometryMsg(ros::Time(10 + i), start * toro::Pose3::fromRollPitchYaw(0.3 * i, 0, 0, 0, 0, 0.05 * i)));
+    p.handleOdometry(
+        odometryMsg(ros::Time(10 + i), start * toro::Pose3::fromRollPitchYaw(0.3 * i, 0, 0, 0, 0, 0.05 * i)));
   // A loop closure that contradicts the odometry moves the corrected poses away from it.
   LoopClosure lc;
   lc.id_from = 0;
@@ -110,8 +112,8 @@ TEST(Pipeline, DriftingSquareWithALoopClosureEndsNearTruth) {
   drain(p);
   const auto s = p.makeSnapshot();
   const double corrected_error = positionError(*s, sc.truth[last]);
-  std::cout << "newest keyframe position error: raw odometry " << raw_error << " m, corrected " << corrected_error
-            << " m\n";
+  std::cout << "newest keyframe position error: raw odometry " << raw_error << " m, corrected "
+            << corrected_error << " m\n";
   EXPECT_LT(corrected_error, 0.1 * raw_error);
   EXPECT_GT(p.status().counters.optimization_passes, 1u);
 }
@@ -155,7 +157,8 @@ TEST(Pipeline, TimeJumpBackwardsResetsSmallStepBackIsRefused) {
   p.handleOdometry(odometryMsg(ros::Time(118.5), toro::Pose3()));  // 0.5 s back: out of order
   EXPECT_EQ(p.keyframes().size(), 20u);
   EXPECT_EQ(count(p.status().counters, "odometry: out of order"), 1u);
-  p.handleOdometry(odometryMsg(ros::Time(50), toro::Pose3::fromRollPitchYaw(3, 0, 0, 0, 0, 0)));  // bag restarted
+  p.handleOdometry(
+      odometryMsg(ros::Time(50), toro::Pose3::fromRollPitchYaw(3, 0, 0, 0, 0, 0)));  // bag restarted
   EXPECT_EQ(p.status().counters.time_jump_resets, 1u);
   EXPECT_EQ(p.keyframes().size(), 1u);
   EXPECT_EQ(p.keyframes().newest().id, 0);
@@ -217,7 +220,8 @@ TEST(Pipeline, SaveThenLoadGivesTheSameGraph) {
   ASSERT_EQ(q.graph().numConstraints(), p.graph().numConstraints());
   for (std::size_t i = 0; i < p.graph().numNodes(); ++i) {
     EXPECT_EQ(q.graph().node(i).id, p.graph().node(i).id);
-    EXPECT_NEAR((q.graph().node(i).pose.translation() - p.graph().node(i).pose.translation()).norm(), 0, 1e-12);
+    EXPECT_NEAR((q.graph().node(i).pose.translation() - p.graph().node(i).pose.translation()).norm(), 0,
+                1e-12);
     EXPECT_EQ(q.keyframes().records()[i].stamp, p.keyframes().records()[i].stamp);
   }
   EXPECT_NEAR(toro::g2oChi2(q.graph()), toro::g2oChi2(p.graph()), 1e-9 * (1 + toro::g2oChi2(p.graph())));
@@ -249,4 +253,30 @@ TEST(Pipeline, LoopClosureNamingTheNewestOdometryIsAppliedAtOnce) {
   EXPECT_EQ(p.status().counters.loop_closures_applied, 1u);
   EXPECT_EQ(p.keyframes().newest().stamp, sc.odometry.back().header.stamp);
   EXPECT_LE(p.keyframes().size(), before + 1);
+}
+
+TEST(Pipeline, WithoutLoopClosureKeyframesKeyframingDependsOnOdometryAlone) {
+  const DriftScenario sc = makeDriftingSquare();
+  PipelineOptions o;
+  o.matcher.create_keyframes = false;
+  Pipeline p(o), reference(o);
+  for (const auto& m : sc.odometry) {
+    p.handleOdometry(m);
+    reference.handleOdometry(m);
+  }
+  // Names the newest odometry, which is not a keyframe: nothing is made for it.
+  const LoopClosure lc = trueLoopClosure(sc, 0, sc.odometry.size() - 1);
+  ASSERT_FALSE(p.keyframes().nearest(lc.stamp_to, 0.0).has_value());
+  p.handleLoopClosure(lc);
+  EXPECT_EQ(p.keyframes().size(), reference.keyframes().size());
+  EXPECT_EQ(p.status().pending_loop_closures, 1u);
+  // The last keyframe (made while turning) is within tolerance; the loop closure is settled on it
+  // once odometry is far enough past the stamp that no later keyframe could be nearer.
+  const auto nearest = p.keyframes().nearest(lc.stamp_to, o.matcher.stamp_tolerance_sec);
+  ASSERT_TRUE(nearest.has_value());
+  const ros::Time late = lc.stamp_to + ros::Duration(o.matcher.stamp_tolerance_sec + 0.01);
+  p.handleOdometry(odometryMsg(late, poseFromMsg(sc.odometry.back().pose.pose)));
+  EXPECT_EQ(p.status().pending_loop_closures, 0u);
+  EXPECT_EQ(p.status().counters.loop_closures_applied, 1u);
+  EXPECT_EQ(p.graph().constraints().back().to, *nearest);
 }

@@ -10,8 +10,10 @@ namespace {
 Snapshot snapshot() {
   Snapshot s;
   for (int i = 0; i < 4; ++i)
-    s.keyframes.push_back(SnapshotKeyframe{i, ros::Time(10 + i), toro::Pose3::fromRollPitchYaw(i, 2 * i, 0, 0, 0, 0)});
-  s.edges = {{0, 1, false, 0.0}, {1, 2, false, 0.0}, {2, 3, false, 0.0}, {3, 0, true, 20.0}, {2, 0, true, 0.0}};
+    s.keyframes.push_back(
+        SnapshotKeyframe{i, ros::Time(10 + i), toro::Pose3::fromRollPitchYaw(i, 2 * i, 0, 0, 0, 0)});
+  s.edges = {
+      {0, 1, false, 0.0}, {1, 2, false, 0.0}, {2, 3, false, 0.0}, {3, 0, true, 20.0}, {2, 0, true, 0.0}};
   return s;
 }
 

@@ -83,7 +83,7 @@ class MapCorrectorNode {
   std::atomic<bool> stop_{false};
   std::atomic<bool> warned_frame_{false};
 
-  mutable std::mutex snapshot_mutex_;        // guards snapshot_ (the pointer, not the pointee)
+  mutable std::mutex snapshot_mutex_;  // guards snapshot_ (the pointer, not the pointee)
   std::shared_ptr<const Snapshot> snapshot_;
 
   // Visualisation timer state (only its callback touches these).

@@ -16,21 +16,21 @@ namespace toro_ros {
 struct NodeOptions {
   std::string map_frame = "map";
   std::string odom_frame = "odom";
-  double tf_rate_hz = 50.0;                // map->odom republish rate
-  double transform_tolerance_sec = 0.1;    // tf stamped this far ahead of now
-  double visualization_rate_hz = 2.0;      // max rate of ~path and ~graph_markers updates
+  double tf_rate_hz = 50.0;              // map->odom republish rate
+  double transform_tolerance_sec = 0.1;  // tf stamped this far ahead of now
+  double visualization_rate_hz = 2.0;    // max rate of ~path and ~graph_markers updates
   double diagnostics_rate_hz = 1.0;
-  int queue_size = 2000;                   // input queue bound (messages beyond are dropped, counted)
-  double service_timeout_sec = 60.0;       // a service waits this long for the worker
+  int queue_size = 2000;              // input queue bound (messages beyond are dropped, counted)
+  double service_timeout_sec = 60.0;  // a service waits this long for the worker
   PipelineOptions pipeline;
   MarkerOptions markers;
   std::string validate() const;
 };
 
 struct OptionsReport {
-  std::vector<std::string> values;         // "key = value" for every known key (the log)
-  std::vector<std::string> unknown_keys;   // keys given but not known (typos)
-  std::vector<std::string> errors;         // wrong types or invalid values
+  std::vector<std::string> values;        // "key = value" for every known key (the log)
+  std::vector<std::string> unknown_keys;  // keys given but not known (typos)
+  std::vector<std::string> errors;        // wrong types or invalid values
 };
 
 // Reads every known key from `params` (a struct of the private namespace; missing keys keep their

@@ -47,6 +47,11 @@ class KeyframeIndex {
 struct LoopClosureMatchOptions {
   double stamp_tolerance_sec = 0.25;  // nearest keyframe must be within this of the stamp
   std::size_t max_pending = 200;      // loop closures waiting for odometry to reach their stamps
+  // Make a keyframe from the odometry sample at (or just after) a loop closure's stamp when no
+  // keyframe is nearer.  Exact and quick, but keyframing then depends on when a loop closure
+  // arrives relative to the odometry, so a live run and an offline replay of the same bag can
+  // differ; false keeps keyframing a function of the odometry alone.
+  bool create_keyframes = true;
   std::string validate() const;
 };
 

@@ -4,10 +4,10 @@
 
 #include <string>
 
-#include <boost/array.hpp>
 #include <geometry_msgs/Pose.h>
 #include <geometry_msgs/Transform.h>
 #include <nav_msgs/Odometry.h>
+#include <boost/array.hpp>
 
 #include "toro_ros/LoopClosure.h"
 #include "toro_ros/core/pose3.h"

@@ -21,7 +21,7 @@
 namespace toro_ros {
 
 struct OptimizationOptions {
-  double gamma = 1.0;                 // TORO learning rate 1/(gamma k)
+  double gamma = 1.0;  // TORO learning rate 1/(gamma k)
   // Full rounds: `full_iterations` passes over all constraints, due every `full_every_keyframes`
   // new keyframes or `full_every_sec` of message time (0 disables either), and only when a loop
   // closure arrived since the last round (a chain of odometry alone has nothing to correct).
@@ -57,7 +57,7 @@ struct PipelineStatus {
   std::size_t keyframes = 0;
   std::size_t constraints = 0;
   std::size_t pending_loop_closures = 0;
-  double last_chi2 = 0.0;                 // NaN before any optimisation
+  double last_chi2 = 0.0;  // NaN before any optimisation
   double last_optimization_sec = 0.0;
   bool paused = false;
   PipelineCounters counters;

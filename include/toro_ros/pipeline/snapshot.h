@@ -15,14 +15,14 @@
 namespace toro_ros {
 
 struct PipelineCounters {
-  std::uint64_t odometry_messages = 0;   // received (valid or not)
+  std::uint64_t odometry_messages = 0;  // received (valid or not)
   std::uint64_t odometry_refused = 0;
   std::uint64_t loop_closures_received = 0;
   std::uint64_t loop_closures_applied = 0;
   std::uint64_t loop_closures_refused = 0;
   std::uint64_t time_jump_resets = 0;
-  std::uint64_t resets = 0;              // all resets (time jumps, service, load)
-  std::uint64_t optimization_passes = 0; // full and affected passes run
+  std::uint64_t resets = 0;               // all resets (time jumps, service, load)
+  std::uint64_t optimization_passes = 0;  // full and affected passes run
   // Refusals by category, "odometry: ..." and "loop closure: ..." (see loop_closure_matcher.h).
   std::map<std::string, std::uint64_t> refused_by_reason;
 };
@@ -37,7 +37,7 @@ struct SnapshotEdge {
   std::size_t from_index = 0;  // into Snapshot::keyframes
   std::size_t to_index = 0;
   bool loop_closure = false;
-  double chi2 = 0.0;           // g2o chi2 of this constraint at the corrected poses (loop closures only)
+  double chi2 = 0.0;  // g2o chi2 of this constraint at the corrected poses (loop closures only)
 };
 
 struct Snapshot {
@@ -49,8 +49,8 @@ struct Snapshot {
   // has_map_T_odom = false before the first keyframe.
   bool has_map_T_odom = false;
   toro::Pose3 map_T_odom;
-  ros::Time newest_stamp;        // stamp of the newest keyframe
-  double chi2 = 0.0;             // g2o chi2 after the last optimisation (NaN before any)
+  ros::Time newest_stamp;  // stamp of the newest keyframe
+  double chi2 = 0.0;       // g2o chi2 after the last optimisation (NaN before any)
   double last_optimization_sec = 0.0;
   std::size_t pending_loop_closures = 0;
   PipelineCounters counters;

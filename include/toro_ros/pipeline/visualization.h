@@ -11,8 +11,8 @@
 namespace toro_ros {
 
 struct MarkerOptions {
-  double node_scale_m = 0.1;     // sphere diameter of keyframes
-  double edge_width_m = 0.02;    // line width of constraints
+  double node_scale_m = 0.1;   // sphere diameter of keyframes
+  double edge_width_m = 0.02;  // line width of constraints
   // Loop closures are coloured from green (chi2 0) to red (chi2 >= this).
   double loop_closure_chi2_red = 10.0;
   bool draw_odometry_edges = true;
@@ -26,7 +26,8 @@ constexpr const char* kOdometryEdges = "odometry_edges";
 constexpr const char* kLoopClosures = "loop_closures";
 }  // namespace marker_ns
 
-nav_msgs::Path pathFromSnapshot(const Snapshot& snapshot, const std::string& map_frame, const ros::Time& stamp);
+nav_msgs::Path pathFromSnapshot(const Snapshot& snapshot, const std::string& map_frame,
+                                const ros::Time& stamp);
 
 // Markers for the snapshot.  With `delete_all` the array starts with a DELETEALL marker (after a
 // reset, so nothing of the old graph stays on screen).
