@@ -17,7 +17,7 @@ namespace {
 
 // The one place parameters are read: the whole private namespace at once, every value logged,
 // unknown keys warned about (typos would otherwise silently keep a default).
-NodeOptions loadOptions(const ros::NodeHandle& private_nh) {
+NodeOptions loadOptions(const ros::NodeHandle& private_nh, std::vector<std::string>* unknown_keys) {
   XmlRpc::XmlRpcValue params;
   if (!private_nh.getParam(private_nh.getNamespace(), params)) params = XmlRpc::XmlRpcValue();
   OptionsReport report;
@@ -32,6 +32,7 @@ NodeOptions loadOptions(const ros::NodeHandle& private_nh) {
     for (const std::string& e : report.errors) all << "\n  " << e;
     throw std::invalid_argument("invalid parameters in " + private_nh.getNamespace() + ":" + all.str());
   }
+  *unknown_keys = report.unknown_keys;
   return options;
 }
 
@@ -40,7 +41,7 @@ NodeOptions loadOptions(const ros::NodeHandle& private_nh) {
 MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_nh)
     : nh_(nh),
       private_nh_(private_nh),
-      options_(loadOptions(private_nh)),
+      options_(loadOptions(private_nh, &unknown_parameters_)),
       queue_(static_cast<std::size_t>(options_.queue_size)),
       pipeline_(std::make_unique<Pipeline>(
           options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); })),
@@ -188,10 +189,15 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   const std::size_t queued = queue_.size();
   if (queued * 2 > static_cast<std::size_t>(options_.queue_size))
     status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "input queue more than half full");
+  else if (!unknown_parameters_.empty())
+    status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "unknown parameters (typos?), see the log");
   else if (s->keyframes.empty())
     status.summary(diagnostic_msgs::DiagnosticStatus::OK, "waiting for odometry");
   else
     status.summary(diagnostic_msgs::DiagnosticStatus::OK, "running");
+  std::string unknown;
+  for (const std::string& key : unknown_parameters_) unknown += (unknown.empty() ? "" : " ") + key;
+  status.add("unknown parameters", unknown);
   status.add("queue length", queued);
   status.add("queue dropped", queue_.dropped());
   status.add("keyframes", s->keyframes.size());

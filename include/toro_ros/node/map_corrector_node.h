@@ -77,6 +77,7 @@ class MapCorrectorNode {
   bool getStatusService(GetStatus::Request& req, GetStatus::Response& res);
 
   ros::NodeHandle nh_, private_nh_;
+  std::vector<std::string> unknown_parameters_;  // private keys nobody reads (shown in diagnostics)
   NodeOptions options_;
   InputQueue<Item> queue_;
   std::unique_ptr<Pipeline> pipeline_;  // touched only by the worker thread (after construction)
