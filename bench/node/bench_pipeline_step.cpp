@@ -1,0 +1,81 @@
+// In-process profile of the worker's per-loop-closure work at 20,000 keyframes, on the graph of
+// bench_node_latency (a 500-keyframe circuit, a loop closure every 100 keyframes to one lap back):
+// the affected TORO pass (+ the g2o chi2 the pipeline computes after it), a Snapshot, and the chi2
+// alone.  No ROS master, no threads.  Usage: bench_pipeline_step [keyframes]
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/pipeline/msg_conversion.h"
+#include "toro_ros/pipeline/pipeline.h"
+
+using namespace toro_ros;
+
+namespace {
+
+double msSince(std::chrono::steady_clock::time_point t0) {
+  return 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+nav_msgs::Odometry odometry(const ros::Time& t, const toro::Pose3& pose) {
+  nav_msgs::Odometry m;
+  m.header.stamp = t;
+  m.pose.pose = poseToMsg(pose);
+  return m;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const int total = argc > 1 ? std::stoi(argv[1]) : 20000;
+  const int lap = 500;
+  PipelineOptions o;
+  o.keyframer.distance_m = 0.005;  // every message a keyframe, as in run_node_bench.sh
+  o.optimization.full_iterations = 0;
+  Pipeline p(o);
+  toro::Pose3 truth, odom;
+  std::vector<toro::Pose3> truths;
+  std::vector<ros::Time> stamps;
+  double affected_ms = 0;
+  int affected_n = 0;
+  for (int i = 0; i < total; ++i) {
+    const ros::Time t(100 + 0.01 * i);
+    p.handleOdometry(odometry(t, odom));
+    truths.push_back(truth);
+    stamps.push_back(t);
+    if (i >= lap && i % 100 == 0) {
+      LoopClosure lc;
+      lc.id_from = lc.id_to = -1;
+      lc.stamp_from = stamps[i - lap];
+      lc.stamp_to = t;
+      lc.from_T_to = poseToMsg(toro::relativePose(truths[i - lap], truth));
+      for (int k = 0; k < 6; ++k) lc.covariance[7 * k] = 1e-4;
+      p.handleLoopClosure(lc);
+      const auto t0 = std::chrono::steady_clock::now();
+      p.runScheduledOptimization();
+      if (i >= total * 3 / 4) {
+        affected_ms += msSince(t0);
+        ++affected_n;
+      }
+    }
+    truth = truth * toro::Pose3::fromRollPitchYaw(0.01, 0, 0, 0, 0, 2 * M_PI / lap);
+    odom = odom * toro::Pose3::fromRollPitchYaw(0.0101, 0, 0, 0, 0, 1.002 * 2 * M_PI / lap);
+  }
+  constexpr int kRepeats = 20;
+  auto t0 = std::chrono::steady_clock::now();
+  for (int k = 0; k < kRepeats; ++k) p.makeSnapshot();
+  const double snapshot_ms = msSince(t0) / kRepeats;
+  t0 = std::chrono::steady_clock::now();
+  double sink = 0;
+  for (int k = 0; k < kRepeats; ++k) sink += toro::g2oChi2(p.graph());
+  const double chi2_ms = msSince(t0) / kRepeats;
+  std::printf("keyframes %zu, constraints %zu (chi2 %.3g)\n", p.keyframes().size(),
+              p.graph().numConstraints(), sink / kRepeats);
+  std::printf("affected pass + chi2, mean over the last quarter's loop closures: %.2f ms (n=%d)\n",
+              affected_ms / affected_n, affected_n);
+  std::printf("makeSnapshot: %.2f ms   g2oChi2 alone: %.2f ms\n", snapshot_ms, chi2_ms);
+  return 0;
+}
