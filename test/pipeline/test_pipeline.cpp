@@ -1,5 +1,6 @@
 #include <unistd.h>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
 #include <string>
 
@@ -240,6 +241,41 @@ TEST(Pipeline, SaveThenLoadGivesTheSameGraph) {
   EXPECT_EQ(q.keyframes().size(), p.keyframes().size() + 1);  // a failed load changes nothing
   std::remove(path.c_str());
   std::remove((path + ".stamps").c_str());
+  rmdir(dir_template);
+}
+
+TEST(Pipeline, SaveAndLoadInToroFormatAndWithoutSidecar) {
+  const DriftScenario sc = makeDriftingSquare(1);
+  Pipeline p(options());
+  for (const auto& m : sc.odometry) p.handleOdometry(m);
+  p.handleLoopClosure(trueLoopClosure(sc, 0, sc.odometry.size() - 1));
+  drain(p);
+  char dir_template[] = "/tmp/toro_pipeline_XXXXXX";
+  ASSERT_NE(mkdtemp(dir_template), nullptr);
+  const std::string path = std::string(dir_template) + "/map.graph";  // TORO format by extension
+  ASSERT_EQ(p.saveGraph(path), "");
+  {
+    std::ifstream in(path);
+    std::string tag;
+    in >> tag;
+    EXPECT_EQ(tag, "VERTEX3");
+  }
+  Pipeline q(options());
+  ASSERT_EQ(q.loadGraph(path), "");
+  ASSERT_EQ(q.graph().numNodes(), p.graph().numNodes());
+  for (std::size_t i = 0; i < p.graph().numNodes(); ++i) {
+    EXPECT_LT((q.graph().node(i).pose.translation() - p.graph().node(i).pose.translation()).norm(), 1e-9);
+    EXPECT_LT(toro::relativePose(q.graph().node(i).pose, p.graph().node(i).pose).angle(), 1e-9);
+  }
+  // Without the sidecar: no stamps, and loop closures recognised as the non-consecutive edges.
+  std::remove((path + ".stamps").c_str());
+  Pipeline r(options());
+  ASSERT_EQ(r.loadGraph(path), "");
+  EXPECT_TRUE(r.keyframes().newest().stamp.isZero());
+  std::size_t loops = 0;
+  for (const auto& e : r.makeSnapshot()->edges) loops += e.loop_closure;
+  EXPECT_EQ(loops, 1u);
+  std::remove(path.c_str());
   rmdir(dir_template);
 }
 
