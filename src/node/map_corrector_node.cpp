@@ -142,7 +142,15 @@ void MapCorrectorNode::workerLoop() {
     // Sleep only when no optimisation round is in progress; otherwise take what came in and go on.
     if (!queue_.popAll(batch, !pipeline_->hasScheduledWork())) break;
     const std::uint64_t before = pipeline_->revision();
-    for (Item& item : batch) process(item);
+    for (Item& item : batch) {
+      // The pipeline reports bad input as counted refusals; an exception here is a bug, and the
+      // node keeps running (and says so) rather than taking the robot's map down with it.
+      try {
+        process(item);
+      } catch (const std::exception& e) {
+        ROS_ERROR_STREAM("map corrector: input dropped after an internal error: " << e.what());
+      }
+    }
     batch.clear();
     pipeline_->runScheduledOptimization();
     if (pipeline_->revision() != before) publishSnapshot();

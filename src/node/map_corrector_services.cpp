@@ -12,18 +12,27 @@ std::optional<R> MapCorrectorNode::runOnWorker(std::function<R(Pipeline&)> f) {
   auto promise = std::make_shared<std::promise<R>>();
   std::future<R> result = promise->get_future();
   queue_.pushAlways(Command([promise, f = std::move(f), this](Pipeline& pipeline) {
-    promise->set_value(f(pipeline));
+    try {
+      promise->set_value(f(pipeline));
+    } catch (...) {
+      promise->set_exception(std::current_exception());
+    }
     // Commands change the map (reset, load, optimise): publish at once, not at the next message.
     publishSnapshot();
   }));
   if (result.wait_for(std::chrono::duration<double>(options_.service_timeout_sec)) !=
       std::future_status::ready)
     return std::nullopt;
-  return result.get();
+  try {
+    return result.get();
+  } catch (const std::exception& e) {
+    ROS_ERROR_STREAM("map corrector: service command failed: " << e.what());
+    return std::nullopt;
+  }
 }
 
 namespace {
-constexpr const char* kTimedOut = "timed out waiting for the worker (service_timeout_sec)";
+constexpr const char* kTimedOut = "no answer from the worker (service_timeout_sec passed, or an internal error: see the log)";
 }  // namespace
 
 bool MapCorrectorNode::optimizeService(Optimize::Request& req, Optimize::Response& res) {
