@@ -32,26 +32,47 @@ iterations=100
   echo "\`toro_optimize -q --mode toro -i $iterations D.odometry.g2o\` (the same graph, $iterations TORO iterations from the"
   echo "chain guess).  Time and peak memory: \`/usr/bin/time -f '%e %M'\` around the whole process."
   echo
-  echo "| dataset | nodes / constraints | tool | wall s | of it optimising s | peak RSS MiB | final g2o chi2 |"
-  echo "| --- | --- | --- | --- | --- | --- | --- |"
+  echo 'Position RMSE against the truth (sphere2500 only: GTSAM'"'"'s noise-free `sphere2500_groundtruth.txt`,'
+  echo 'passed to graph_to_bag as `--ground-truth`; no alignment, both start at the first pose) by `toro_score`;'
+  echo "the raw odometry's is given in the toro_offline row's note."
+  echo
+  echo "| dataset | nodes / constraints | tool | wall s | of it optimising s | peak RSS MiB | final g2o chi2 | position RMSE vs truth m |"
+  echo "| --- | --- | --- | --- | --- | --- | --- | --- |"
 } > "$out.tmp"
+
+truth_of() {  # the truth file of a dataset, if one is known
+  [[ "$1" == sphere2500 && -f "$datasets/toro/sphere2500_groundtruth_gtsam.txt" ]] &&
+    echo "--ground-truth $datasets/toro/sphere2500_groundtruth_gtsam.txt"
+  return 0
+}
+rmse_of() {  # rmse_of GRAPH: position RMSE of GRAPH (with a .stamps sidecar) vs the truth, or "-"
+  local truth=$work/$d.truth.g2o
+  [[ -f "$truth" ]] || { echo "-"; return; }
+  "$bin/toro_score" "$1" "$truth" | grep "after (corrected)" | sed 's/.*RMSE \([^ ]*\) m.*/\1/'
+}
 
 for d in parking-garage sphere2500; do
   bag=$work/$d.bag
-  "$bin/graph_to_bag" "$datasets/$d.g2o" "$bag" --keyframe-period 0.1 > /dev/null
+  # shellcheck disable=SC2046
+  "$bin/graph_to_bag" "$datasets/$d.g2o" "$bag" --keyframe-period 0.1 $(truth_of "$d") > /dev/null
   /usr/bin/time -f "%e %M" -o "$work/t1" "$bin/toro_offline" "$bag" --config "$root/bench/offline_period_0.1s.yaml" \
     --output-dir "$work/$d.offline" --final-iterations $iterations --no-curve --quiet > "$work/off.log" 2>&1
   read -r wall1 rss1 < <(tail -1 "$work/t1")
   summary=$work/$d.offline/summary.json
   py() { /usr/bin/python3 -c "import json,sys; s=json.load(open('$summary')); print($1)"; }
   sizes="$(py "s['keyframes']") / $(py "s['constraints']")"
-  echo "| $d | $sizes | toro_offline | $wall1 | $(py "'%.2f' % s['optimization_sec']") | $((rss1 / 1024)) | $(py "'%.6g' % s['chi2_corrected']") |" >> "$out.tmp"
-  /usr/bin/time -f "%e %M" -o "$work/t2" "$bin/toro_optimize" -q --mode toro -i $iterations "$work/$d.odometry.g2o" \
-    > "$work/opt.log" 2>&1
+  odometry_rmse=""
+  [[ -f "$work/$d.truth.g2o" ]] && odometry_rmse=" (odometry: $(py "'%.4g' % s['score']['odometry']['rmse_m']"))"
+  echo "| $d | $sizes | toro_offline | $wall1 | $(py "'%.2f' % s['optimization_sec']") | $((rss1 / 1024)) |" \
+       "$(py "'%.6g' % s['chi2_corrected']") | $(rmse_of "$work/$d.offline/corrected.g2o")$odometry_rmse |" >> "$out.tmp"
+  /usr/bin/time -f "%e %M" -o "$work/t2" "$bin/toro_optimize" -q --mode toro -i $iterations \
+    -o "$work/$d.toro_optimize.g2o" "$work/$d.odometry.g2o" > "$work/opt.log" 2>&1
+  cp "$work/$d.odometry.g2o.stamps" "$work/$d.toro_optimize.g2o.stamps"  # same ids and stamps
   read -r wall2 rss2 < <(tail -1 "$work/t2")
   chi2=$(grep -m1 '^  after' "$work/opt.log" | sed 's/.*g2o chi2 \([^ ]*\).*/\1/')
   optsec=$(grep -m1 '^  time' "$work/opt.log" | sed 's/.*optimisation \([^ ]*\) s.*/\1/')
-  echo "| $d | $sizes | toro_optimize | $wall2 | $optsec | $((rss2 / 1024)) | $chi2 |" >> "$out.tmp"
+  echo "| $d | $sizes | toro_optimize | $wall2 | $optsec | $((rss2 / 1024)) | $chi2 |" \
+       "$(rmse_of "$work/$d.toro_optimize.g2o") |" >> "$out.tmp"
   echo "$d: done" >&2
 done
 # Hand-written observations below "## Notes" survive a re-run.

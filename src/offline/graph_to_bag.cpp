@@ -43,8 +43,19 @@ std::vector<toro::Pose3> rebased(const toro::PoseGraph& graph) {
   return out;
 }
 
+// A truth file without VERTEX lines (e.g. GTSAM's sphere2500_groundtruth: noise-free measurements
+// only) gives its poses by chaining its consecutive-id constraints.
+toro::PoseGraph chainedTruth(const toro::PoseGraph& truth, const std::string& path) {
+  const RobotTimeline chain = makeTimeline(sortedById(truth), GraphToBagOptions(), path);
+  toro::PoseGraph out = truth;
+  for (std::size_t k = 0; k < chain.ids.size(); ++k) out.setPose(chain.ids[k], chain.odom_T_base[k]);
+  return out;
+}
+
 std::vector<toro::Pose3> truthPoses(const toro::PoseGraph& input, const std::string& path) {
-  const toro::PoseGraph truth = toro::readGraph(path);
+  toro::ReadReport report;
+  toro::PoseGraph truth = toro::readGraph(path, toro::ReadOptions(), &report);
+  if (!report.has_vertices) truth = chainedTruth(truth, path);
   toro::PoseGraph ordered = input;
   for (std::size_t i = 0; i < input.numNodes(); ++i) {
     const toro::NodeId id = input.node(i).id;

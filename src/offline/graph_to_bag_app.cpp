@@ -10,7 +10,8 @@ namespace offline {
 namespace {
 
 const std::vector<ArgSpec> kSpecs = {
-    {"ground-truth", "graph file whose poses are the truth (same ids as the input); written as <stem>.truth.g2o"},
+    {"ground-truth", "graph file whose poses are the truth (same ids as the input; without VERTEX lines: the "
+                     "chain of its noise-free measurements); written as <stem>.truth.g2o"},
     {"reference-iterations", "no truth known: optimise the input with this many TORO passes and write the result "
                              "as <stem>.reference.g2o (a reference optimum, not a truth). Default 0 (none)"},
     {"rate", "odometry (and tf) messages per second. Default 20"},

@@ -20,8 +20,10 @@
 // Beside the bag (for scoring): "<stem>.odometry.g2o" (the input's constraints, poses = the
 // odometry chain) with its "<stem>.odometry.g2o.stamps" sidecar (persistence.h: the stamp and
 // odometry pose of each node, which constraints are loop closures), and, where known,
-// "<stem>.truth.g2o": the true poses (from a second graph file with the same ids, e.g. the
-// synthetic sample whose vertices are its ground truth) or, if asked, "<stem>.reference.g2o": the
+// "<stem>.truth.g2o": the true poses (from a second graph file with the same ids: its vertices,
+// e.g. the synthetic sample whose vertices are its ground truth, or, in a file without VERTEX
+// lines, the chain of its noise-free consecutive-id measurements, e.g. GTSAM's
+// sphere2500_groundtruth.txt) or, if asked, "<stem>.reference.g2o": the
 // input optimised by the core's TORO (a reference optimum, not a truth), both expressed in the
 // odom frame (first pose = identity).
 #pragma once
