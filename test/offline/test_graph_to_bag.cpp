@@ -151,6 +151,26 @@ TEST_F(GraphToBagTest, WritesTruthAndOdometryScoringFiles) {
   EXPECT_EQ(r.written.size(), 4u);
 }
 
+TEST_F(GraphToBagTest, TruthWithoutVerticesIsTheChainOfItsMeasurements) {
+  // Like GTSAM's sphere2500_groundtruth.txt: noise-free constraints, no VERTEX lines.
+  const std::string edges_only = (dir_ / "edges_only.g2o").string();
+  {
+    std::ifstream in(input_);
+    std::ofstream out(edges_only);
+    for (std::string line; std::getline(in, line);)
+      if (line.rfind("VERTEX", 0) != 0) out << line << "\n";
+  }
+  options_.ground_truth_path = edges_only;
+  graphToBag(options_);
+  const RobotTimeline t = makeTimeline(graph_, options_, input_);
+  const toro::PoseGraph truth = toro::readGraph((dir_ / "robot.truth.g2o").string());
+  ASSERT_EQ(truth.numNodes(), t.ids.size());
+  for (std::size_t k = 0; k < t.ids.size(); ++k) {
+    EXPECT_LT((truth.pose(t.ids[k]).translation() - t.odom_T_base[k].translation()).norm(), 1e-9) << k;
+    EXPECT_LT(toro::relativePose(truth.pose(t.ids[k]), t.odom_T_base[k]).angle(), 1e-9) << k;
+  }
+}
+
 TEST_F(GraphToBagTest, ConstantPeriodPutsKeyframesOnTheGrid) {
   options_.keyframe_period_sec = 0.25;
   const RobotTimeline t = makeTimeline(graph_, options_, input_);
