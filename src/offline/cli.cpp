@@ -39,7 +39,8 @@ double ParsedArgs::number(const std::string& name, double fallback) const {
   if (it == values.end()) return fallback;
   char* end = nullptr;
   const double v = std::strtod(it->second.c_str(), &end);
-  if (it->second.empty() || *end != '\0') throw std::invalid_argument("--" + name + ": expected a number, got '" + it->second + "'");
+  if (it->second.empty() || *end != '\0')
+    throw std::invalid_argument("--" + name + ": expected a number, got '" + it->second + "'");
   return v;
 }
 

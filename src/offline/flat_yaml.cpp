@@ -39,7 +39,8 @@ XmlRpc::XmlRpcValue scalar(const std::string& text) {
   char* end = nullptr;
   errno = 0;
   const long i = std::strtol(text.c_str(), &end, 10);
-  if (end && *end == '\0' && errno == 0 && i >= INT32_MIN && i <= INT32_MAX) return XmlRpc::XmlRpcValue(static_cast<int>(i));
+  if (end && *end == '\0' && errno == 0 && i >= INT32_MIN && i <= INT32_MAX)
+    return XmlRpc::XmlRpcValue(static_cast<int>(i));
   const double d = std::strtod(text.c_str(), &end);
   if (end && *end == '\0' && !text.empty()) return XmlRpc::XmlRpcValue(d);
   return XmlRpc::XmlRpcValue(text);
@@ -62,7 +63,8 @@ XmlRpc::XmlRpcValue readFlatYaml(const std::string& path) {
     const auto colon = content.find(':');
     if (colon == std::string::npos) throw std::runtime_error(where + "expected 'key: value'");
     const std::string key = trim(content.substr(0, colon)), value = trim(content.substr(colon + 1));
-    if (key.empty() || value.empty()) throw std::runtime_error(where + "expected 'key: value' with both parts");
+    if (key.empty() || value.empty())
+      throw std::runtime_error(where + "expected 'key: value' with both parts");
     if (out.hasMember(key)) throw std::runtime_error(where + "key '" + key + "' given twice");
     out[key] = scalar(value);
   }

@@ -60,7 +60,8 @@ std::vector<toro::Pose3> truthPoses(const toro::PoseGraph& input, const std::str
   for (std::size_t i = 0; i < input.numNodes(); ++i) {
     const toro::NodeId id = input.node(i).id;
     if (!truth.hasNode(id))
-      throw std::runtime_error(path + ": ground truth has no node " + std::to_string(id) + " (the input has it)");
+      throw std::runtime_error(path + ": ground truth has no node " + std::to_string(id) +
+                               " (the input has it)");
     ordered.setPoseAt(i, truth.pose(id));
   }
   return rebased(ordered);
@@ -90,7 +91,8 @@ void writeScoringFiles(const toro::PoseGraph& graph, const RobotTimeline& t, con
     toro::writeGraph(withPoses(graph, truthPoses(graph, o.ground_truth_path)), stem + ".truth.g2o");
     result->written.push_back(stem + ".truth.g2o");
   } else if (o.reference_iterations > 0) {
-    toro::writeGraph(withPoses(graph, referencePoses(graph, o.reference_iterations)), stem + ".reference.g2o");
+    toro::writeGraph(withPoses(graph, referencePoses(graph, o.reference_iterations)),
+                     stem + ".reference.g2o");
     result->written.push_back(stem + ".reference.g2o");
   }
 }
@@ -104,7 +106,8 @@ std::string GraphToBagOptions::validate() const {
   if (!positive(odometry_rate_hz) || odometry_rate_hz > 1000) return "odometry_rate_hz must be in (0, 1000]";
   if (!positive(speed_mps)) return "speed_mps must be > 0";
   if (!positive(angular_speed_radps)) return "angular_speed_radps must be > 0";
-  if (!(std::isfinite(keyframe_period_sec) && keyframe_period_sec >= 0)) return "keyframe_period_sec must be >= 0";
+  if (!(std::isfinite(keyframe_period_sec) && keyframe_period_sec >= 0))
+    return "keyframe_period_sec must be >= 0";
   if (keyframe_period_sec > 0) {
     const double samples = keyframe_period_sec * odometry_rate_hz;
     if (samples < 1 - 1e-9 || std::abs(samples - std::round(samples)) > 1e-6)
@@ -122,12 +125,14 @@ std::string GraphToBagOptions::validate() const {
 
 std::string bagStem(const std::string& bag_path) {
   const std::string suffix = ".bag";
-  if (bag_path.size() > suffix.size() && bag_path.compare(bag_path.size() - suffix.size(), suffix.size(), suffix) == 0)
+  if (bag_path.size() > suffix.size() &&
+      bag_path.compare(bag_path.size() - suffix.size(), suffix.size(), suffix) == 0)
     return bag_path.substr(0, bag_path.size() - suffix.size());
   return bag_path;
 }
 
-RobotTimeline makeTimeline(const toro::PoseGraph& graph, const GraphToBagOptions& o, const std::string& source) {
+RobotTimeline makeTimeline(const toro::PoseGraph& graph, const GraphToBagOptions& o,
+                           const std::string& source) {
   if (graph.numNodes() < 2) throw std::runtime_error(source + ": the graph needs at least two nodes");
   RobotTimeline t;
   t.sample_period = ros::Duration().fromNSec(std::llround(1e9 / o.odometry_rate_hz));
@@ -148,7 +153,8 @@ RobotTimeline makeTimeline(const toro::PoseGraph& graph, const GraphToBagOptions
     const auto it = first_between.find({ids[k], ids[k + 1]});
     if (it == first_between.end())
       throw std::runtime_error(source + ": no constraint from node " + std::to_string(ids[k]) + " to node " +
-                               std::to_string(ids[k + 1]) + " (consecutive ids): the odometry chain is broken");
+                               std::to_string(ids[k + 1]) +
+                               " (consecutive ids): the odometry chain is broken");
     const toro::Pose3& step = graph.constraints()[it->second].measurement;
     t.odometry_constraint.push_back(it->second);
     t.is_loop_closure[it->second] = false;

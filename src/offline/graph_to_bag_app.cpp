@@ -10,16 +10,19 @@ namespace offline {
 namespace {
 
 const std::vector<ArgSpec> kSpecs = {
-    {"ground-truth", "graph file whose poses are the truth (same ids as the input; without VERTEX lines: the "
-                     "chain of its noise-free measurements); written as <stem>.truth.g2o"},
-    {"reference-iterations", "no truth known: optimise the input with this many TORO passes and write the result "
-                             "as <stem>.reference.g2o (a reference optimum, not a truth). Default 0 (none)"},
+    {"ground-truth",
+     "graph file whose poses are the truth (same ids as the input; without VERTEX lines: the "
+     "chain of its noise-free measurements); written as <stem>.truth.g2o"},
+    {"reference-iterations",
+     "no truth known: optimise the input with this many TORO passes and write the result "
+     "as <stem>.reference.g2o (a reference optimum, not a truth). Default 0 (none)"},
     {"rate", "odometry (and tf) messages per second. Default 20"},
     {"speed", "nominal speed between keyframes, m/s. Default 1.0"},
     {"angular-speed", "nominal turn rate, rad/s (a step lasts at least its angle / this). Default 0.5"},
     {"keyframe-period", "every step lasts this long, s (a multiple of 1/rate); 0 = from speed. Default 0"},
     {"start", "stamp of the first message, s. Default 1000"},
-    {"latency", "loop closures are published this long after the robot reaches their later pose, s. Default 0.02"},
+    {"latency",
+     "loop closures are published this long after the robot reaches their later pose, s. Default 0.02"},
     {"odom-frame", "Default odom"},
     {"base-frame", "Default base_link"},
 };
@@ -52,8 +55,8 @@ int runGraphToBag(int argc, char** argv) {
       return args.help ? 0 : 2;
     }
     const GraphToBagResult r = graphToBag(optionsFromArgs(args));
-    std::cout << r.keyframes << " keyframes, " << r.odometry_messages << " odometry messages, " << r.loop_closures
-              << " loop closures over " << r.duration_sec << " s\n";
+    std::cout << r.keyframes << " keyframes, " << r.odometry_messages << " odometry messages, "
+              << r.loop_closures << " loop closures over " << r.duration_sec << " s\n";
     for (const std::string& f : r.written) std::cout << "wrote " << f << "\n";
     return 0;
   } catch (const std::invalid_argument& e) {

@@ -42,7 +42,9 @@ std::string num(double v) {
   return s.str();
 }
 
-std::string vec3(const toro::Vector3& v) { return "[" + num(v.x()) + ", " + num(v.y()) + ", " + num(v.z()) + "]"; }
+std::string vec3(const toro::Vector3& v) {
+  return "[" + num(v.x()) + ", " + num(v.y()) + ", " + num(v.z()) + "]";
+}
 
 std::string jsonString(const std::string& s) {
   std::string out = "\"";
@@ -55,13 +57,15 @@ std::string jsonString(const std::string& s) {
 
 void writeErrorJson(std::ostream& out, const char* name, const TrajectoryError& e) {
   out << "    " << jsonString(name) << ": {\"poses\": " << e.poses << ", \"rmse_m\": " << num(e.rmse_m)
-      << ", \"mean_m\": " << num(e.mean_m) << ", \"max_m\": " << num(e.max_m) << ", \"final_m\": " << num(e.final_m)
-      << ", \"mean_rotation_rad\": " << num(e.mean_rotation_rad) << "}";
+      << ", \"mean_m\": " << num(e.mean_m) << ", \"max_m\": " << num(e.max_m)
+      << ", \"final_m\": " << num(e.final_m) << ", \"mean_rotation_rad\": " << num(e.mean_rotation_rad)
+      << "}";
 }
 
 void writeKeyframesJson(std::ostream& out, Pipeline& p, const OfflineOptions& options) {
   std::unique_ptr<TruthTrajectory> truth;
-  if (!options.truth_path.empty()) truth = std::make_unique<TruthTrajectory>(TruthTrajectory::load(options.truth_path));
+  if (!options.truth_path.empty())
+    truth = std::make_unique<TruthTrajectory>(TruthTrajectory::load(options.truth_path));
   const auto& records = p.keyframes().records();
   out << "  \"trajectory\": [\n";
   for (std::size_t i = 0; i < records.size(); ++i) {
@@ -83,7 +87,8 @@ void writeLoopClosuresJson(std::ostream& out, Pipeline& p, const toro::PoseGraph
     const SnapshotEdge& e = s->edges[c];
     if (!e.loop_closure) continue;
     out << (first ? "\n" : ",\n") << "    {\"from\": " << e.from_index << ", \"to\": " << e.to_index
-        << ", \"chi2_before\": " << num(toro::constraintChi2(before, c)) << ", \"chi2_after\": " << num(e.chi2) << "}";
+        << ", \"chi2_before\": " << num(toro::constraintChi2(before, c))
+        << ", \"chi2_after\": " << num(e.chi2) << "}";
     first = false;
   }
   out << "\n  ],\n";
@@ -94,20 +99,23 @@ void writeCurveJson(std::ostream& out, const std::vector<CurvePoint>& curve) {
   for (std::size_t i = 0; i < curve.size(); ++i) {
     const CurvePoint& c = curve[i];
     out << (i ? ",\n" : "\n") << "    {\"pass\": " << c.pass << ", \"stamp\": " << num(c.stamp_sec)
-        << ", \"keyframes\": " << c.keyframes << ", \"constraints\": " << c.constraints << ", \"chi2\": " << num(c.chi2)
-        << ", \"final\": " << (c.final_phase ? "true" : "false") << "}";
+        << ", \"keyframes\": " << c.keyframes << ", \"constraints\": " << c.constraints
+        << ", \"chi2\": " << num(c.chi2) << ", \"final\": " << (c.final_phase ? "true" : "false") << "}";
   }
   out << "\n  ],\n";
 }
 
-void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary& s, const OfflineOptions& options) {
+void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary& s,
+                      const OfflineOptions& options) {
   std::ofstream out(path);
   if (!out) throw std::runtime_error(path + ": cannot write the summary");
   const PipelineCounters& k = s.status.counters;
   out << "{\n  \"bag\": " << jsonString(s.bag) << ",\n  \"messages\": " << s.run.messages
-      << ",\n  \"bag_duration_sec\": " << num(s.run.bag_duration_sec) << ",\n  \"wall_sec\": " << num(s.run.wall_sec)
-      << ",\n  \"optimization_sec\": " << num(s.run.optimization_sec) << ",\n  \"keyframes\": " << s.status.keyframes
-      << ",\n  \"constraints\": " << s.status.constraints << ",\n  \"odometry_messages\": " << k.odometry_messages
+      << ",\n  \"bag_duration_sec\": " << num(s.run.bag_duration_sec)
+      << ",\n  \"wall_sec\": " << num(s.run.wall_sec)
+      << ",\n  \"optimization_sec\": " << num(s.run.optimization_sec)
+      << ",\n  \"keyframes\": " << s.status.keyframes << ",\n  \"constraints\": " << s.status.constraints
+      << ",\n  \"odometry_messages\": " << k.odometry_messages
       << ",\n  \"odometry_refused\": " << k.odometry_refused
       << ",\n  \"loop_closures_received\": " << k.loop_closures_received
       << ",\n  \"loop_closures_applied\": " << k.loop_closures_applied
@@ -115,8 +123,8 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
       << ",\n  \"loop_closures_pending\": " << s.status.pending_loop_closures
       << ",\n  \"optimization_passes\": " << k.optimization_passes
       << ",\n  \"final_iterations\": " << s.run.final_result.iterations
-      << ",\n  \"chi2_odometry\": " << num(s.chi2_odometry) << ",\n  \"chi2_corrected\": " << num(s.chi2_corrected)
-      << ",\n  \"refused_by_reason\": {";
+      << ",\n  \"chi2_odometry\": " << num(s.chi2_odometry)
+      << ",\n  \"chi2_corrected\": " << num(s.chi2_corrected) << ",\n  \"refused_by_reason\": {";
   bool first = true;
   for (const auto& [reason, count] : k.refused_by_reason) {
     out << (first ? "" : ", ") << jsonString(reason) << ": " << count;
@@ -178,7 +186,8 @@ OfflineSummary summarize(OfflineRunner& runner, const OfflineRun& run, const Off
   s.chi2_odometry = toro::g2oChi2(atOdometryPoses(p));
   s.chi2_corrected = toro::g2oChi2(p.graph());
   if (!options.truth_path.empty()) {
-    s.score = scoreKeyframes(p.keyframes().records(), correctedPoses(p), TruthTrajectory::load(options.truth_path));
+    s.score =
+        scoreKeyframes(p.keyframes().records(), correctedPoses(p), TruthTrajectory::load(options.truth_path));
     s.has_score = true;
   }
   return s;
@@ -187,7 +196,8 @@ OfflineSummary summarize(OfflineRunner& runner, const OfflineRun& run, const Off
 void writeOutputs(OfflineRunner& runner, const OfflineSummary& summary, const OfflineOptions& options) {
   std::error_code ec;
   std::filesystem::create_directories(options.output_dir, ec);
-  if (ec) throw std::runtime_error(options.output_dir + ": cannot create the output directory: " + ec.message());
+  if (ec)
+    throw std::runtime_error(options.output_dir + ": cannot create the output directory: " + ec.message());
   Pipeline& p = runner.pipeline();
   const std::string error = p.saveGraph(options.output_dir + "/corrected.g2o");
   if (!error.empty()) throw std::runtime_error(error);
@@ -200,9 +210,10 @@ std::string describeSummary(const OfflineSummary& s) {
   const PipelineCounters& k = s.status.counters;
   out << s.run.messages << " messages (" << s.run.bag_duration_sec << " s of bag) in " << s.run.wall_sec
       << " s wall, " << s.run.optimization_sec << " s optimising\n"
-      << s.status.keyframes << " keyframes, " << s.status.constraints << " constraints; loop closures: "
-      << k.loop_closures_received << " received, " << k.loop_closures_applied << " applied, "
-      << k.loop_closures_refused << " refused, " << s.status.pending_loop_closures << " pending\n"
+      << s.status.keyframes << " keyframes, " << s.status.constraints
+      << " constraints; loop closures: " << k.loop_closures_received << " received, "
+      << k.loop_closures_applied << " applied, " << k.loop_closures_refused << " refused, "
+      << s.status.pending_loop_closures << " pending\n"
       << "chi2 before (odometry) " << s.chi2_odometry << ", after " << s.chi2_corrected << " ("
       << k.optimization_passes << " passes)\n";
   if (s.has_score) out << describeScore(s.score);

@@ -57,7 +57,8 @@ std::map<std::string, BagHandler> makeBagHandlers(const std::string& topic_names
 
 NodeOptions loadNodeOptionsFile(const std::string& path) {
   OptionsReport report;
-  const NodeOptions options = loadNodeOptions(path.empty() ? XmlRpc::XmlRpcValue() : readFlatYaml(path), &report);
+  const NodeOptions options =
+      loadNodeOptions(path.empty() ? XmlRpc::XmlRpcValue() : readFlatYaml(path), &report);
   std::ostringstream problems;
   for (const std::string& key : report.unknown_keys) problems << "\n  unknown key " << key;
   for (const std::string& e : report.errors) problems << "\n  " << e;
@@ -82,7 +83,8 @@ void OfflineRunner::drainSchedule(double stamp_sec, OfflineRun* run) {
     if (!pipeline_->runScheduledOptimization()) break;
     run->optimization_sec += since(t0);
     const PipelineStatus s = pipeline_->status();
-    run->curve.push_back(CurvePoint{run->curve.size() + 1, stamp_sec, s.keyframes, s.constraints, s.last_chi2, false});
+    run->curve.push_back(
+        CurvePoint{run->curve.size() + 1, stamp_sec, s.keyframes, s.constraints, s.last_chi2, false});
   } while (pipeline_->hasScheduledWork());
 }
 
@@ -122,7 +124,8 @@ OfflineRun OfflineRunner::run() {
   for (const auto& entry : handlers) topics.push_back(entry.first);
   rosbag::View view(bag, rosbag::TopicQuery(topics));
   if (view.size() == 0)
-    throw std::runtime_error(options_.bag_path + ": no message on " + topics.front() + " or " + topics.back());
+    throw std::runtime_error(options_.bag_path + ": no message on " + topics.front() + " or " +
+                             topics.back());
   const ros::Time begin = view.getBeginTime(), end = view.getEndTime();
   run.bag_duration_sec = (end - begin).toSec();
   ProgressBar bar(std::cerr, options_.progress);
@@ -135,7 +138,8 @@ OfflineRun OfflineRunner::run() {
     ++run.messages;
     ++run.messages_by_topic[m.getTopic()];
     drainSchedule(m.getTime().toSec(), &run);
-    bar.update(run.bag_duration_sec > 0 ? (m.getTime() - begin).toSec() / run.bag_duration_sec : 1.0, run.messages);
+    bar.update(run.bag_duration_sec > 0 ? (m.getTime() - begin).toSec() / run.bag_duration_sec : 1.0,
+               run.messages);
   }
   bar.finish(run.messages);
   if (warnings_.size() > kMaxPrintedWarnings)

@@ -23,8 +23,8 @@ void ProgressBar::finish(std::size_t count) {
 void ProgressBar::draw(int percent, std::size_t count) {
   constexpr int kWidth = 40;
   const int filled = percent * kWidth / 100;
-  out_ << "\r[" << std::string(filled, '#') << std::string(kWidth - filled, ' ') << "] " << percent << "%  " << count
-       << " msgs" << std::flush;
+  out_ << "\r[" << std::string(filled, '#') << std::string(kWidth - filled, ' ') << "] " << percent << "%  "
+       << count << " msgs" << std::flush;
   shown_ = percent;
 }
 

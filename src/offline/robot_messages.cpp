@@ -66,7 +66,8 @@ nav_msgs::Odometry odometryAtSample(const RobotTimeline& t, long sample, const G
     // Body-frame velocity of the current step (constant over the step).
     const toro::Pose3 step = toro::relativePose(t.odom_T_base[k], t.odom_T_base[k + 1]);
     const double sec = n * t.sample_period.toSec();
-    const toro::Vector3 v = step.translation() / sec, w = toro::rotationVectorFromQuaternion(step.rotation()) / sec;
+    const toro::Vector3 v = step.translation() / sec,
+                        w = toro::rotationVectorFromQuaternion(step.rotation()) / sec;
     msg.twist.twist.linear.x = v.x(), msg.twist.twist.linear.y = v.y(), msg.twist.twist.linear.z = v.z();
     msg.twist.twist.angular.x = w.x(), msg.twist.twist.angular.y = w.y(), msg.twist.twist.angular.z = w.z();
   }

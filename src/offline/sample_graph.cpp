@@ -20,21 +20,37 @@ toro::Vector3 pointAt(double s) {
   const double a = kLength - 2 * kCornerRadius, b = kWidth - 2 * kCornerRadius, q = M_PI * kCornerRadius / 2;
   const double perimeter = 2 * a + 2 * b + 4 * q;
   s = std::fmod(s, perimeter);
-  // Segments: bottom (right half), corner, right side, corner, top, corner, left side, corner, bottom (left half).
+  // Segments: bottom (right half), corner, right side, corner, top, corner, left side, corner, bottom (left
+  // half).
   const double segments[] = {a / 2, q, b, q, a, q, b, q, a / 2};
-  const toro::Vector3 corners[] = {{a / 2, b / 2, 0}, {-a / 2, b / 2, 0}, {-a / 2, -b / 2, 0}, {a / 2, -b / 2, 0}};
+  const toro::Vector3 corners[] = {
+      {a / 2, b / 2, 0}, {-a / 2, b / 2, 0}, {-a / 2, -b / 2, 0}, {a / 2, -b / 2, 0}};
   double x = 0, y = -kWidth / 2;
   int i = 0;
-  for (; i < 8 && s > segments[i]; s -= segments[i], ++i) {}
+  for (; i < 8 && s > segments[i]; s -= segments[i], ++i) {
+  }
   switch (i) {
-    case 0: x = s; break;
-    case 2: x = kLength / 2, y = -b / 2 + s; break;
-    case 4: x = a / 2 - s, y = kWidth / 2; break;
-    case 6: x = -kLength / 2, y = b / 2 - s; break;
-    case 8: x = -a / 2 + s; break;
+    case 0:
+      x = s;
+      break;
+    case 2:
+      x = kLength / 2, y = -b / 2 + s;
+      break;
+    case 4:
+      x = a / 2 - s, y = kWidth / 2;
+      break;
+    case 6:
+      x = -kLength / 2, y = b / 2 - s;
+      break;
+    case 8:
+      x = -a / 2 + s;
+      break;
     default: {  // corners 1, 3, 5, 7: quarter circles
       const int c = (i - 1) / 2;
-      const toro::Vector3 centre = c == 0 ? corners[3] : c == 1 ? corners[0] : c == 2 ? corners[1] : corners[2];
+      const toro::Vector3 centre = c == 0   ? corners[3]
+                                   : c == 1 ? corners[0]
+                                   : c == 2 ? corners[1]
+                                            : corners[2];
       const double start = -M_PI / 2 + c * M_PI / 2, angle = start + s / kCornerRadius;
       x = centre.x() + kCornerRadius * std::cos(angle), y = centre.y() + kCornerRadius * std::sin(angle);
     }
@@ -83,8 +99,8 @@ int runMakeSampleGraph(int argc, char** argv) {
     if (o.laps < 2) throw std::invalid_argument("--laps: must be >= 2 (loop closures join consecutive laps)");
     const toro::SyntheticGraph g = makeSampleGraph(o);
     toro::writeGraph(g.graph, args.positional[0]);
-    std::cout << "wrote " << args.positional[0] << ": " << g.graph.numNodes() << " poses (vertices = ground truth), "
-              << g.graph.numConstraints() << " constraints\n";
+    std::cout << "wrote " << args.positional[0] << ": " << g.graph.numNodes()
+              << " poses (vertices = ground truth), " << g.graph.numConstraints() << " constraints\n";
     return 0;
   } catch (const std::invalid_argument& e) {
     std::cerr << "make_sample_graph: " << e.what() << "\n";

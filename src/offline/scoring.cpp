@@ -13,15 +13,18 @@ namespace offline {
 
 TruthTrajectory TruthTrajectory::load(const std::string& truth_path) {
   const std::string suffix = ".truth.g2o";
-  if (truth_path.size() <= suffix.size() || truth_path.compare(truth_path.size() - suffix.size(), suffix.size(), suffix))
-    throw std::runtime_error(truth_path + ": a truth file is named <stem>.truth.g2o (as graph_to_bag writes it)");
+  if (truth_path.size() <= suffix.size() ||
+      truth_path.compare(truth_path.size() - suffix.size(), suffix.size(), suffix))
+    throw std::runtime_error(truth_path +
+                             ": a truth file is named <stem>.truth.g2o (as graph_to_bag writes it)");
   const std::string stem = truth_path.substr(0, truth_path.size() - suffix.size());
   const toro::PoseGraph truth = toro::readGraph(truth_path);
   const Sidecar sidecar = readSidecar(sidecarPath(stem + ".odometry.g2o"));
   TruthTrajectory out;
   for (const KeyframeRecord& k : sidecar.keyframes) {
     if (!truth.hasNode(k.id))
-      throw std::runtime_error(truth_path + ": no node " + std::to_string(k.id) + " (named in the stamps sidecar)");
+      throw std::runtime_error(truth_path + ": no node " + std::to_string(k.id) +
+                               " (named in the stamps sidecar)");
     if (!out.stamps_.empty() && k.stamp <= out.stamps_.back())
       throw std::runtime_error(sidecarPath(stem + ".odometry.g2o") + ": stamps do not increase at node " +
                                std::to_string(k.id));

@@ -14,11 +14,13 @@ namespace {
 const std::vector<ArgSpec> kSpecs = {
     {"config", "node parameter file (keys of config/map_corrector.yaml). Default: the node's defaults"},
     {"output-dir", "where corrected.g2o, corrected_poses.bag and summary.json go. Default out/offline"},
-    {"namespace", "namespace the node would run in; its relative topics odom and loop_closure resolve there. "
-                  "Default /"},
+    {"namespace",
+     "namespace the node would run in; its relative topics odom and loop_closure resolve there. "
+     "Default /"},
     {"final-iterations", "full passes after the bag, as ~optimize would run them (0: none). Default 20"},
-    {"truth", "truth file for scoring (<stem>.truth.g2o from graph_to_bag). Default: <bag stem>.truth.g2o if "
-              "it exists"},
+    {"truth",
+     "truth file for scoring (<stem>.truth.g2o from graph_to_bag). Default: <bag stem>.truth.g2o if "
+     "it exists"},
     {"no-curve", "do not record chi2 after each final pass (saves one extra run of the final passes)", false},
     {"quiet", "no progress bar", false},
 };

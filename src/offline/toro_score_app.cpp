@@ -18,7 +18,8 @@ void score(const std::string& corrected_path, const std::string& truth_path) {
   const Sidecar sidecar = readSidecar(sidecarPath(corrected_path));
   if (sidecar.keyframes.size() != corrected.numNodes())
     throw std::runtime_error(sidecarPath(corrected_path) + ": " + std::to_string(sidecar.keyframes.size()) +
-                             " keyframes but the graph has " + std::to_string(corrected.numNodes()) + " nodes");
+                             " keyframes but the graph has " + std::to_string(corrected.numNodes()) +
+                             " nodes");
   toro::PoseGraph odometry = corrected;
   std::vector<toro::Pose3> poses;
   for (std::size_t i = 0; i < sidecar.keyframes.size(); ++i) {
@@ -28,7 +29,8 @@ void score(const std::string& corrected_path, const std::string& truth_path) {
   }
   std::cout << corrected.numNodes() << " keyframes, " << corrected.numConstraints() << " constraints ("
             << sidecar.loop_closures.size() << " loop closures)\n"
-            << "chi2 before (odometry) " << toro::g2oChi2(odometry) << ", after " << toro::g2oChi2(corrected) << "\n";
+            << "chi2 before (odometry) " << toro::g2oChi2(odometry) << ", after " << toro::g2oChi2(corrected)
+            << "\n";
   if (!truth_path.empty())
     std::cout << describeScore(scoreKeyframes(sidecar.keyframes, poses, TruthTrajectory::load(truth_path)));
 }
@@ -40,7 +42,8 @@ int runToroScore(int argc, char** argv) {
   try {
     const ParsedArgs args = parseArgs(argc, argv, specs);
     if (args.help || args.positional.empty() || args.positional.size() > 2) {
-      std::cerr << usage("toro_score CORRECTED.g2o [TRUTH.truth.g2o]  (CORRECTED.g2o.stamps must exist)", specs);
+      std::cerr << usage("toro_score CORRECTED.g2o [TRUTH.truth.g2o]  (CORRECTED.g2o.stamps must exist)",
+                         specs);
       return args.help ? 0 : 2;
     }
     score(args.positional[0], args.positional.size() > 1 ? args.positional[1] : "");

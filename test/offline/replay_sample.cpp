@@ -76,7 +76,8 @@ TEST_F(ReplaySample, LiveNodeAndOfflineRunnerGiveTheSameGraph) {
   ASSERT_FALSE(live_path_.empty());
   const fs::path out = fs::path(sampleDir()) / "replay_test_offline";
   const std::string cmd = std::string(TORO_OFFLINE_BIN) + " " + sampleDir() + "/sample.bag --config " +
-                          TORO_SOURCE_DIR + "/config/replay_sample.yaml --final-iterations 20 --quiet --no-curve " +
+                          TORO_SOURCE_DIR +
+                          "/config/replay_sample.yaml --final-iterations 20 --quiet --no-curve " +
                           "--output-dir " + out.string() + " > /dev/null";
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
   const Saved live = load(live_path_), offline = load((out / "corrected.g2o").string());
@@ -124,14 +125,17 @@ TEST_F(ReplaySample, FinalCorrectedPoseOnTfIsNearTheTruth) {
   while (!buffer.canTransform("map", "base_link", ros::Time(0)) && ros::WallTime::now() < deadline)
     ros::WallDuration(0.1).sleep();
   ASSERT_NO_THROW(t = buffer.lookupTransform("map", "base_link", ros::Time(0)));
-  const toro::Vector3 corrected(t.transform.translation.x, t.transform.translation.y, t.transform.translation.z);
+  const toro::Vector3 corrected(t.transform.translation.x, t.transform.translation.y,
+                                t.transform.translation.z);
   const TruthTrajectory truth = TruthTrajectory::load(sampleDir() + "/sample.truth.g2o");
   toro::Pose3 true_final;
   ASSERT_TRUE(truth.at(truth.stamps().back(), &true_final));
   const Sidecar odometry = readSidecar(sidecarPath(sampleDir() + "/sample.odometry.g2o"));
   const double corrected_error = (corrected - true_final.translation()).norm();
-  const double odometry_error = (odometry.keyframes.back().odom_T_base.translation() - true_final.translation()).norm();
-  std::cout << "final pose error: corrected " << corrected_error << " m, odometry " << odometry_error << " m\n";
+  const double odometry_error =
+      (odometry.keyframes.back().odom_T_base.translation() - true_final.translation()).norm();
+  std::cout << "final pose error: corrected " << corrected_error << " m, odometry " << odometry_error
+            << " m\n";
   EXPECT_LT(corrected_error, 0.5);
   EXPECT_LT(corrected_error, odometry_error / 3);
 }

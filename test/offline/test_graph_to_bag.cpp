@@ -47,7 +47,9 @@ BagContents readBack(const std::string& path) {
   return out;
 }
 
-double relativeDifference(const toro::Matrix6& a, const toro::Matrix6& b) { return (a - b).norm() / b.norm(); }
+double relativeDifference(const toro::Matrix6& a, const toro::Matrix6& b) {
+  return (a - b).norm() / b.norm();
+}
 
 class GraphToBagTest : public ::testing::Test {
  protected:
@@ -83,10 +85,11 @@ TEST_F(GraphToBagTest, LoopClosuresReproduceTheGraphsConstraints) {
     if (!t.is_loop_closure[c]) continue;
     const toro::Constraint& k = graph_.constraints()[c];
     // Written in constraint order; read back in time order: find it by its stamps.
-    const auto it = std::find_if(bag.loop_closures.begin(), bag.loop_closures.end(), [&](const LoopClosure& m) {
-      return m.stamp_from == t.stampOfKeyframe(graph_.indexOf(k.from)) &&
-             m.stamp_to == t.stampOfKeyframe(graph_.indexOf(k.to));
-    });
+    const auto it =
+        std::find_if(bag.loop_closures.begin(), bag.loop_closures.end(), [&](const LoopClosure& m) {
+          return m.stamp_from == t.stampOfKeyframe(graph_.indexOf(k.from)) &&
+                 m.stamp_to == t.stampOfKeyframe(graph_.indexOf(k.to));
+        });
     ASSERT_NE(it, bag.loop_closures.end()) << "constraint " << c;
     EXPECT_EQ(it->id_from, -1);
     const toro::Pose3 z = poseFromMsg(it->from_T_to);
@@ -123,8 +126,8 @@ TEST_F(GraphToBagTest, OdometryIsTheDriftingChainAtTheRateWithStepInformation) {
   Keyframer keyframer(ko);
   for (std::size_t k = 0; k < t.ids.size(); ++k) {
     const nav_msgs::Odometry& m = bag.odometry[t.sample_of_keyframe[k]];
-    const std::optional<OdometryStep> step =
-        keyframer.accept(OdometrySample{m.header.stamp, poseFromMsg(m.pose.pose), covarianceMatrix(m.pose.covariance)});
+    const std::optional<OdometryStep> step = keyframer.accept(
+        OdometrySample{m.header.stamp, poseFromMsg(m.pose.pose), covarianceMatrix(m.pose.covariance)});
     if (k == 0) continue;
     const toro::Constraint& c = graph_.constraints()[t.odometry_constraint[k - 1]];
     EXPECT_LT((step->previous_T_current.translation() - c.measurement.translation()).norm(), 1e-9) << k;
@@ -220,18 +223,14 @@ TEST_F(GraphToBagTest, BrokenOdometryChainIsAnErrorNamingTheFileAndNodes) {
 
 TEST(FlatYaml, ReadsScalarsAndNamesTheLineOfAnError) {
   const fs::path p = fs::temp_directory_path() / ("toro_flat_" + std::to_string(::getpid()) + ".yaml");
-  {
-    std::ofstream(p) << "# comment\na: 1\nb: 2.5  # trailing\nc: true\nd: \"x # y\"\ne: word\n";
-  }
+  { std::ofstream(p) << "# comment\na: 1\nb: 2.5  # trailing\nc: true\nd: \"x # y\"\ne: word\n"; }
   XmlRpc::XmlRpcValue v = readFlatYaml(p.string());
   EXPECT_EQ(static_cast<int>(v["a"]), 1);
   EXPECT_DOUBLE_EQ(static_cast<double>(v["b"]), 2.5);
   EXPECT_TRUE(static_cast<bool>(v["c"]));
   EXPECT_EQ(static_cast<std::string>(v["d"]), "x # y");
   EXPECT_EQ(static_cast<std::string>(v["e"]), "word");
-  {
-    std::ofstream(p) << "a: 1\nnested:\n  b: 2\n";
-  }
+  { std::ofstream(p) << "a: 1\nnested:\n  b: 2\n"; }
   try {
     readFlatYaml(p.string());
     FAIL() << "no error";

@@ -49,16 +49,17 @@ TEST(OfflineRunner, SampleRebuildsTheBagsGraphNodeForNode) {
   ASSERT_EQ(g.numNodes(), expected.numNodes());
   ASSERT_EQ(g.numConstraints(), expected.numConstraints());
   const auto& records = runner.pipeline().keyframes().records();
-  for (std::size_t i = 0; i < records.size(); ++i) EXPECT_EQ(records[i].stamp, stamps.keyframes[i].stamp) << i;
+  for (std::size_t i = 0; i < records.size(); ++i)
+    EXPECT_EQ(records[i].stamp, stamps.keyframes[i].stamp) << i;
   // Constraints in a different order (loop closures arrive after later odometry): match by ends.
   for (const toro::Constraint& e : expected.constraints()) {
-    const auto it = std::find_if(g.constraints().begin(), g.constraints().end(), [&](const toro::Constraint& c) {
-      return c.from == e.from && c.to == e.to;
-    });
+    const auto it = std::find_if(g.constraints().begin(), g.constraints().end(),
+                                 [&](const toro::Constraint& c) { return c.from == e.from && c.to == e.to; });
     ASSERT_NE(it, g.constraints().end()) << e.from << " -> " << e.to;
     EXPECT_LT((it->measurement.translation() - e.measurement.translation()).norm(), 1e-9);
     EXPECT_LT(toro::relativePose(it->measurement, e.measurement).angle(), 1e-9);
-    EXPECT_LT((it->information - e.information).norm() / e.information.norm(), 1e-6) << e.from << " -> " << e.to;
+    EXPECT_LT((it->information - e.information).norm() / e.information.norm(), 1e-6)
+        << e.from << " -> " << e.to;
   }
   EXPECT_EQ(runner.pipeline().status().counters.loop_closures_refused, 0u);
   EXPECT_EQ(run.messages_by_topic.at("/loop_closure"), stamps.loop_closures.size());
@@ -72,7 +73,8 @@ TEST(OfflineRunner, SampleBeatsOdometryByAWideMarginAgainstTruth) {
   EXPECT_EQ(s.score.corrected.poses, 144u);
   // Stated margin: at least 3x lower position RMSE than the odometry, and a chi2 10x lower.
   EXPECT_LT(s.score.corrected.rmse_m, s.score.odometry.rmse_m / 3) << describeSummary(s);
-  EXPECT_LT(s.score.corrected.mean_rotation_rad, s.score.odometry.mean_rotation_rad / 3) << describeSummary(s);
+  EXPECT_LT(s.score.corrected.mean_rotation_rad, s.score.odometry.mean_rotation_rad / 3)
+      << describeSummary(s);
   EXPECT_LT(s.chi2_corrected, s.chi2_odometry / 10) << describeSummary(s);
 }
 
@@ -99,7 +101,8 @@ TEST(OfflineRunner, ConstantSpeedBagWithDefaultConfigStillCorrects) {
 }
 
 TEST(OfflineRunner, WrongMessageTypeNamesBagAndTopic) {
-  const fs::path bag_path = fs::temp_directory_path() / ("toro_offline_bad_" + std::to_string(::getpid()) + ".bag");
+  const fs::path bag_path =
+      fs::temp_directory_path() / ("toro_offline_bad_" + std::to_string(::getpid()) + ".bag");
   {
     rosbag::Bag bag(bag_path.string(), rosbag::bagmode::Write);
     std_msgs::String s;
@@ -170,8 +173,9 @@ TEST(ToroOfflineTool, WritesGraphBagAndSummaryThatAgree) {
   EXPECT_EQ(rosbag::View(bag, rosbag::TopicQuery("/corrected_pose")).size(), 144u);
   EXPECT_EQ(rosbag::View(bag, rosbag::TopicQuery("/tf")).size(), 144u);
   // The plot script draws the summary into a PNG.
-  const std::string plot = "/usr/bin/python3 " + std::string(TORO_SOURCE_DIR) + "/scripts/plot_trajectory.py " +
-                           (out / "summary.json").string() + " -o " + (out / "t.png").string() + " > /dev/null";
+  const std::string plot = "/usr/bin/python3 " + std::string(TORO_SOURCE_DIR) +
+                           "/scripts/plot_trajectory.py " + (out / "summary.json").string() + " -o " +
+                           (out / "t.png").string() + " > /dev/null";
   ASSERT_EQ(std::system(plot.c_str()), 0) << plot;
   std::ifstream png(out / "t.png", std::ios::binary);
   char magic[8] = {};

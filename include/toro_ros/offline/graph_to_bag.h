@@ -39,15 +39,15 @@ namespace toro_ros {
 namespace offline {
 
 struct GraphToBagOptions {
-  std::string input_path;            // graph file (g2o / TORO by extension)
-  std::string output_bag;            // ".bag"
-  std::string ground_truth_path;     // optional graph file whose poses are the truth (same ids)
-  int reference_iterations = 0;      // > 0 and no ground truth: write the TORO optimum as reference
-  double odometry_rate_hz = 20.0;    // odometry and tf messages per second
-  double speed_mps = 1.0;            // nominal speed between keyframes
-  double angular_speed_radps = 0.5;  // nominal turn rate (a step lasts at least its angle / this)
-  double keyframe_period_sec = 0.0;  // > 0: every step lasts this long (a multiple of the period)
-  double start_sec = 1000.0;         // stamp of the first message (a /clock-friendly epoch)
+  std::string input_path;                  // graph file (g2o / TORO by extension)
+  std::string output_bag;                  // ".bag"
+  std::string ground_truth_path;           // optional graph file whose poses are the truth (same ids)
+  int reference_iterations = 0;            // > 0 and no ground truth: write the TORO optimum as reference
+  double odometry_rate_hz = 20.0;          // odometry and tf messages per second
+  double speed_mps = 1.0;                  // nominal speed between keyframes
+  double angular_speed_radps = 0.5;        // nominal turn rate (a step lasts at least its angle / this)
+  double keyframe_period_sec = 0.0;        // > 0: every step lasts this long (a multiple of the period)
+  double start_sec = 1000.0;               // stamp of the first message (a /clock-friendly epoch)
   double loop_closure_latency_sec = 0.02;  // loop closure published this long after its later pose
   std::string odom_frame = "odom";
   std::string base_frame = "base_link";
@@ -60,22 +60,25 @@ struct GraphToBagOptions {
 
 // The timeline and odometry derived from a graph (exposed for tests and the writer).
 struct RobotTimeline {
-  std::vector<toro::NodeId> ids;               // keyframes in id order
-  std::vector<toro::Pose3> odom_T_base;        // odometry chain per keyframe
+  std::vector<toro::NodeId> ids;                 // keyframes in id order
+  std::vector<toro::Pose3> odom_T_base;          // odometry chain per keyframe
   std::vector<std::size_t> odometry_constraint;  // constraint index of step k -> k+1
-  std::vector<bool> is_loop_closure;           // per constraint index
-  std::vector<long> sample_of_keyframe;        // odometry sample index of each keyframe
-  std::vector<toro::Matrix6> step_covariance;  // of step k -> k+1, in k+1's body frame (msg units)
-  std::vector<toro::Matrix6> covariance;       // odom-frame pose covariance at each keyframe
-  ros::Duration sample_period;                 // 1 / odometry_rate_hz, in whole nanoseconds
+  std::vector<bool> is_loop_closure;             // per constraint index
+  std::vector<long> sample_of_keyframe;          // odometry sample index of each keyframe
+  std::vector<toro::Matrix6> step_covariance;    // of step k -> k+1, in k+1's body frame (msg units)
+  std::vector<toro::Matrix6> covariance;         // odom-frame pose covariance at each keyframe
+  ros::Duration sample_period;                   // 1 / odometry_rate_hz, in whole nanoseconds
   ros::Time start;
-  ros::Time stampOfSample(long sample) const { return start + ros::Duration().fromNSec(sample * sample_period.toNSec()); }
+  ros::Time stampOfSample(long sample) const {
+    return start + ros::Duration().fromNSec(sample * sample_period.toNSec());
+  }
   ros::Time stampOfKeyframe(std::size_t k) const { return stampOfSample(sample_of_keyframe[k]); }
 };
 
 // Throws std::runtime_error naming `source` if the graph has no odometry chain (a pair of
 // consecutive ids without a constraint from the first to the second).
-RobotTimeline makeTimeline(const toro::PoseGraph& graph, const GraphToBagOptions& options, const std::string& source);
+RobotTimeline makeTimeline(const toro::PoseGraph& graph, const GraphToBagOptions& options,
+                           const std::string& source);
 
 struct GraphToBagResult {
   std::size_t keyframes = 0;

@@ -20,31 +20,31 @@ namespace offline {
 
 struct OfflineOptions {
   std::string bag_path;
-  std::string config_path;     // node parameter file (config/map_corrector.yaml keys); empty = defaults
+  std::string config_path;  // node parameter file (config/map_corrector.yaml keys); empty = defaults
   std::string output_dir = "out/offline";
   std::string topic_namespace = "/";  // where the node would run: its relative topics resolve here
-  int final_iterations = 20;   // full passes after the bag, as `~optimize` would (0: none)
-  bool iteration_curve = true;  // chi2 after each final pass (runs the final passes on a copy too)
-  bool progress = true;        // progress bar on stderr
-  std::string truth_path;      // optional "<stem>.truth.g2o" (+ the odometry sidecar) for scoring
+  int final_iterations = 20;          // full passes after the bag, as `~optimize` would (0: none)
+  bool iteration_curve = true;        // chi2 after each final pass (runs the final passes on a copy too)
+  bool progress = true;               // progress bar on stderr
+  std::string truth_path;             // optional "<stem>.truth.g2o" (+ the odometry sidecar) for scoring
   std::string validate() const;
 };
 
 // One point of the error curve: after an optimisation pass.
 struct CurvePoint {
-  std::size_t pass = 0;       // 1-based over the whole run
-  double stamp_sec = 0.0;     // newest odometry stamp when it ran (0 for the final passes)
+  std::size_t pass = 0;    // 1-based over the whole run
+  double stamp_sec = 0.0;  // newest odometry stamp when it ran (0 for the final passes)
   std::size_t keyframes = 0;
   std::size_t constraints = 0;
   double chi2 = 0.0;
-  bool final_phase = false;   // one of the final full passes after the bag
+  bool final_phase = false;  // one of the final full passes after the bag
 };
 
 struct OfflineRun {
-  std::size_t messages = 0;   // read from the bag on the input topics
+  std::size_t messages = 0;  // read from the bag on the input topics
   std::map<std::string, std::size_t> messages_by_topic;
   double bag_duration_sec = 0.0;
-  double wall_sec = 0.0;       // everything from opening the bag to the end of the final passes
+  double wall_sec = 0.0;          // everything from opening the bag to the end of the final passes
   double optimization_sec = 0.0;  // part of it spent in optimisation passes
   std::vector<CurvePoint> curve;
   OptimizeResult final_result;

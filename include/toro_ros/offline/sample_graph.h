@@ -14,7 +14,7 @@ namespace offline {
 
 struct SampleOptions {
   int laps = 3;
-  int closure_every = 3;              // keyframes between loop closures
+  int closure_every = 3;  // keyframes between loop closures
   toro::NoiseOptions noise{0.05, 0.01, 42};
 };
 

@@ -15,12 +15,12 @@ namespace toro_ros {
 namespace offline {
 
 struct TrajectoryError {
-  std::size_t poses = 0;           // keyframes scored (stamps inside the truth's time span)
-  double rmse_m = 0.0;             // position
+  std::size_t poses = 0;  // keyframes scored (stamps inside the truth's time span)
+  double rmse_m = 0.0;    // position
   double mean_m = 0.0;
   double max_m = 0.0;
   double mean_rotation_rad = 0.0;
-  double final_m = 0.0;            // position error of the newest scored keyframe
+  double final_m = 0.0;  // position error of the newest scored keyframe
 };
 
 struct Score {
