@@ -13,6 +13,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -55,7 +56,9 @@ constexpr const char* kUsage =
     "  -o OUTPUT                 write the result; format by extension (.graph/.toro: TORO, else g2o)\n"
     "  --initial-guess chain|file  chain the measurements along the tree (default) or keep the\n"
     "                            file's poses (files without VERTEX lines always chain)\n"
-    "  --gamma G                 rotational learning rate of iteration k is 1/(G k) (default 1;\n"
+    "  --gamma G                 rotational learning rate of iteration k is 1/(G k) (default 1 for\n"
+    "                            --mode toro, 0.1 before the finish: larger steps find the best\n"
+    "                            basin on big-noise graphs;\n"
     "                            the translational rate has its own constant, tree_optimizer.h)\n"
     "  --toro-info-order translation-first|rotation-first\n"
     "                            order of the EDGE3 information matrix, for reading and writing\n"
@@ -82,7 +85,7 @@ struct CliOptions {
   toro::LinearSolverType linear_solver = toro::FinishOptions{}.linear_solver;
   std::size_t solver_threads = 1;
   bool chain_guess = true;
-  double gamma = toro::TreeOptimizerOptions{}.gamma;
+  std::optional<double> gamma;  // unset: the mode's default
   toro::ToroInformationOrder toro_order = toro::ToroInformationOrder::kTranslationFirst;
   bool quiet = false;
   bool help = false;
@@ -240,7 +243,10 @@ toro::OptimizeOptions optimizeOptions(const CliOptions& o) {
   toro::OptimizeOptions options;
   options.mode = o.mode;
   options.initial_guess = o.chain_guess ? toro::InitialGuess::kChainOnTree : toro::InitialGuess::kFromGraph;
-  options.toro.gamma = o.gamma;
+  // Without --gamma: TORO's own default alone, the basin-finding one before the finish.
+  options.toro.gamma = o.gamma ? *o.gamma
+                               : (o.mode == toro::OptimizeMode::kToro ? toro::TreeOptimizerOptions{}.gamma
+                                                                      : toro::kToroGammaBeforeFinish);
   options.toro_max_iterations = o.iterations;
   options.toro_min_iterations = std::min(options.toro_min_iterations, o.iterations);
   // TORO alone runs exactly -i iterations, as it always did.
