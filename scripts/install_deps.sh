@@ -22,6 +22,9 @@ TORO_APT_PACKAGES=(
   libdiagnostic-updater-dev
   # maths, benchmarks, plots
   libsuitesparse-dev libbenchmark-dev python3-matplotlib python3-numpy
+  # an optimised BLAS for CHOLMOD's supernodal factorisation (3-4x faster than the reference BLAS
+  # that libsuitesparse-dev pulls in; bench/finish_results.md)
+  libopenblas0-pthread
   # fuzzing (scripts/fuzz.sh): clang and its libFuzzer/sanitizer runtimes (only recommended by clang)
   clang libclang-rt-14-dev
 )
