@@ -86,6 +86,7 @@ def main():
     parser.add_argument('summary', help="toro_offline's summary.json")
     parser.add_argument('-o', '--output', help='PNG to write (default: trajectory.png beside the summary)')
     parser.add_argument('--title', default='')
+    parser.add_argument('--dpi', type=int, default=110, help='resolution (default 110: 1430 x 990 pixels)')
     args = parser.parse_args()
     try:
         with open(args.summary) as f:
@@ -114,7 +115,7 @@ def main():
     draw_curve(curve, summary)
     fig.suptitle(title_of(summary, args.title), fontsize=10)
     os.makedirs(os.path.dirname(os.path.abspath(output)), exist_ok=True)
-    fig.savefig(output, dpi=110)
+    fig.savefig(output, dpi=args.dpi)
     print('wrote %s' % output)
 
 

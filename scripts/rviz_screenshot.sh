@@ -45,7 +45,7 @@ xvfb-run -a -s "-screen 0 1280x900x24" bash -c '
   for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
   if timeout 150 rostopic echo -n 1 /replay_finish/result > '"$work"'/result.txt 2>/dev/null; then
     sleep '"$settle"'
-    import -window root '"$out"'
+    import -window root -crop 1200x800+0+0 +repage '"$out"'  # the rviz window (rviz/map_corrector.rviz geometry)
     status=0
   else
     echo "rviz_screenshot.sh: the replay did not finish; log: " >&2
