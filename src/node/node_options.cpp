@@ -105,6 +105,7 @@ void readPipeline(ParamReader& r, PipelineOptions& p, OptionsReport* report) {
   r.read("optimization_full_every_sec", p.optimization.full_every_sec);
   r.read("optimization_service_default_iterations", p.optimization.service_default_iterations);
   r.read("time_jump_reset_sec", p.time_jump_reset_sec);
+  r.read("odometry_history_sec", p.odometry_history_sec);
 }
 
 }  // namespace

@@ -53,6 +53,8 @@ std::string PipelineOptions::validate() const {
     if (!e.empty()) return e;
   if (!(std::isfinite(time_jump_reset_sec) && time_jump_reset_sec >= 0))
     return "time_jump_reset_sec must be >= 0";
+  if (!(std::isfinite(odometry_history_sec) && odometry_history_sec >= 0))
+    return "odometry_history_sec must be >= 0";
   return "";
 }
 
@@ -62,6 +64,7 @@ Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn)
       optimizer_(optimizerOptions(options)),
       keyframer_(options.keyframer),
       matcher_(options.matcher),
+      odometry_history_(options.odometry_history_sec),
       last_chi2_(kNaN) {
   const std::string error = options.validate();
   if (!error.empty()) throw std::invalid_argument("invalid pipeline options: " + error);
@@ -103,6 +106,7 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
   }
   newest_odometry_ = stamp;
   last_odometry_ = OdometrySample{stamp, poseFromMsg(msg.pose.pose), covarianceMatrix(msg.pose.covariance)};
+  odometry_history_.add(stamp, last_odometry_->odom_T_base);
   if (keyframer_.isKeyframe(*last_odometry_) ||
       (options_.matcher.create_keyframes && matcher_.wantsKeyframeAt(stamp, keyframes_)))
     addKeyframe(*last_odometry_);
@@ -154,10 +158,23 @@ void Pipeline::handleLoopClosure(const LoopClosure& msg) {
     refuseLoopClosure(r, msg);
 }
 
+toro::Pose3 Pipeline::keyframeToStamp(toro::NodeId keyframe, const ros::Time& stamp) const {
+  const KeyframeRecord* k = keyframes_.find(keyframe);
+  const std::optional<toro::Pose3> odom_T_stamp = odometry_history_.at(stamp);
+  if (k == nullptr || !odom_T_stamp) return toro::Pose3();
+  return toro::relativePose(k->odom_T_base, *odom_T_stamp);
+}
+
 void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match) {
   const InformationResult info =
       informationFromCovariance(msg.covariance, options_.loop_closure_default_stddev);
-  toro::Constraint c{match.from, match.to, poseFromMsg(msg.from_T_to), info.information};
+  toro::Pose3 measurement = poseFromMsg(msg.from_T_to);
+  if (msg.id_from < 0 || msg.id_to < 0) {
+    // The message measures stamp_from_T_stamp_to; the constraint joins the matched keyframes.
+    measurement = keyframeToStamp(match.from, msg.stamp_from) * measurement *
+                  keyframeToStamp(match.to, msg.stamp_to).inverse();
+  }
+  toro::Constraint c{match.from, match.to, measurement, info.information};
   try {
     optimizer_.addConstraint(c);
   } catch (const toro::GraphError& e) {
@@ -310,6 +327,7 @@ void Pipeline::clearGraph() {
   optimizer_ = toro::TreeOptimizer(optimizerOptions(options_));
   keyframer_.reset();
   last_odometry_.reset();
+  odometry_history_.clear();
   keyframes_.clear();
   is_loop_closure_.clear();
   newest_odometry_ = ros::Time();

@@ -16,6 +16,7 @@
 #include "toro_ros/core/tree_optimizer.h"
 #include "toro_ros/pipeline/keyframer.h"
 #include "toro_ros/pipeline/loop_closure_matcher.h"
+#include "toro_ros/pipeline/odometry_history.h"
 #include "toro_ros/pipeline/snapshot.h"
 
 namespace toro_ros {
@@ -40,6 +41,9 @@ struct PipelineOptions {
   // Odometry more than this older than the newest resets the graph (a bag restarted); smaller
   // steps back are refused as out of order.
   double time_jump_reset_sec = 1.0;
+  // Odometry kept to move a loop closure from the stamps it names onto its keyframes (the motion
+  // between a stamp and its keyframe); stamps older than this are attached uncorrected.
+  double odometry_history_sec = 60.0;
   std::string validate() const;
 };
 
@@ -108,6 +112,8 @@ class Pipeline {
   void addKeyframe(const OdometrySample& sample);
   void keyframeForStamps(const LoopClosure& msg);
   void applyLoopClosure(const LoopClosure& msg, const MatchResult& match);
+  // keyframe_T_stamp from the odometry history (identity when the stamp is not covered).
+  toro::Pose3 keyframeToStamp(toro::NodeId keyframe, const ros::Time& stamp) const;
   void releasePending();
   void refuse(const std::string& category, const std::string& detail);
   void refuseLoopClosure(const MatchResult& match, const LoopClosure& msg);
@@ -126,6 +132,7 @@ class Pipeline {
   std::vector<bool> is_loop_closure_;  // per constraint index
   ros::Time newest_odometry_;
   std::optional<OdometrySample> last_odometry_;  // the newest odometry message, keyframe or not
+  OdometryHistory odometry_history_;
   toro::NodeId next_id_ = 0;
   bool paused_ = false;
   // Schedule state (message time, never wall time).
