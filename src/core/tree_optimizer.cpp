@@ -58,6 +58,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   inverse_rotation_weight_.assign(n, kUnconstrained);
   inverse_translation_weight_.assign(n, kUnconstrained);
   affected_mark_.assign(graph_.numConstraints(), 0);
+  top_level_.assign(graph_.numConstraints(), 0);  // per constraint, like the vectors above
   topological_order_ = tree_.topologicalOrder();
   parameters_.assign(n, Pose3());
   if (guess == InitialGuess::kFromGraph) {

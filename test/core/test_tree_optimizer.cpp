@@ -335,3 +335,37 @@ TEST(TreeOptimizerOnline, GrowingTheGraphMatchesTheBatchTreeAndCorrectsLoops) {
   for (int i = 0; i < 20; ++i) batch_opt.iterate();
   EXPECT_LT(g2oChi2(online.graph()), 2.0 * g2oChi2(batch_opt.graph()));
 }
+
+TEST(TreeOptimizerOnline, GrowingAfterSetGraphMatchesAFreshStart) {
+  // Start from a non-empty graph, then grow it online (regression: per-constraint bookkeeping was
+  // not sized by setGraph, and growing wrote past its end).
+  NoiseOptions noise;
+  noise.seed = 5;
+  const SyntheticGraph s = makeSphere(4, 20, 5.0, noise);
+  const std::size_t initial_nodes = 30;
+  PoseGraph start;
+  std::vector<std::size_t> later;
+  for (std::size_t i = 0; i < initial_nodes; ++i) start.addNode(s.graph.node(i).id, s.graph.node(i).pose);
+  for (std::size_t c = 0; c < s.graph.numConstraints(); ++c) {
+    const Constraint& k = s.graph.constraints()[c];
+    if (s.graph.indexOf(k.from) < initial_nodes && s.graph.indexOf(k.to) < initial_nodes) {
+      start.addConstraint(k);
+    } else {
+      later.push_back(c);
+    }
+  }
+  TreeOptimizer grown;
+  grown.setGraph(start, InitialGuess::kFromGraph);  // no pass before growing: nothing resized yet
+  for (std::size_t i = initial_nodes; i < s.graph.numNodes(); ++i) grown.addNode(s.graph.node(i).id, s.graph.node(i).pose);
+  for (std::size_t c : later) grown.addConstraint(s.graph.constraints()[c]);
+  ASSERT_EQ(grown.graph().numConstraints(), s.graph.numConstraints());
+  TreeOptimizer fresh;
+  fresh.setGraph(grown.graph(), InitialGuess::kFromGraph);
+  fresh.setIteration(grown.iteration());
+  grown.iterate();
+  fresh.iterate();
+  for (std::size_t i = 0; i < s.graph.numNodes(); ++i) {
+    ASSERT_LT((grown.graph().node(i).pose.translation() - fresh.graph().node(i).pose.translation()).norm(), 1e-9);
+    ASSERT_LT(relativePose(grown.graph().node(i).pose, fresh.graph().node(i).pose).angle(), 1e-9);
+  }
+}
