@@ -4,6 +4,7 @@
 #include <cmath>
 #include <random>
 
+#include "shared_datasets.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
@@ -131,6 +132,7 @@ TEST(GraphOptimizer, SwitchesWhenToroStopsMakingProgressThenFinishes) {
 class ToroThenFinishOnDatasets : public ::testing::TestWithParam<std::pair<const char*, double>> {};
 
 TEST_P(ToroThenFinishOnDatasets, ReachesTheBestKnownChi2FromTheChainedGuess) {
+  TORO_REQUIRE_DATASETS();
   PoseGraph g = readGraph(std::string(TORO_DATASETS_DIR) + "/" + GetParam().first);
   OptimizeOptions o;  // defaults: toro+finish from the chained guess
   const OptimizeReport r = optimizeGraph(g, o);
@@ -148,6 +150,7 @@ INSTANTIATE_TEST_SUITE_P(Reference, ToroThenFinishOnDatasets,
 
 TEST(GraphOptimizer, ToroGammaOneBeforeTheFinishMissesTheBestBasinOnBigNoise) {
   // The reason for kToroGammaBeforeFinish: with TORO's own gamma the finish ends in a worse minimum.
+  TORO_REQUIRE_DATASETS();
   PoseGraph g = readGraph(std::string(TORO_DATASETS_DIR) + "/sphere_bignoise_vertex3.g2o");
   OptimizeOptions o;
   o.toro.gamma = TreeOptimizerOptions{}.gamma;
@@ -158,6 +161,7 @@ TEST(GraphOptimizer, ToroGammaOneBeforeTheFinishMissesTheBestBasinOnBigNoise) {
 TEST(GraphOptimizer, ToroPhaseEscapesTheLocalMinimumOfTheFileGuessOnMIT) {
   // REFERENCE.md (B): from MIT.g2o's own poses LM stops in a local minimum (770.664 there);
   // TORO first reaches the best known 41.1633 (previous test).
+  TORO_REQUIRE_DATASETS();
   PoseGraph g = readGraph(std::string(TORO_DATASETS_DIR) + "/2d/MIT.g2o");
   OptimizeOptions o;
   o.mode = OptimizeMode::kFinish;

@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "shared_datasets.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
 
@@ -220,6 +221,7 @@ TEST(Metrics, DatasetFilesAtTheirOwnPosesGiveFinitePositiveValues) {
   // g2o chi2 lies above the best known minimum of REFERENCE.md (B).
   const std::vector<std::pair<std::string, double>> files = {{"sphere2500.g2o", 727.150},
                                                              {"2d/intel.g2o", 45.0047}};
+  TORO_REQUIRE_DATASETS();
   for (const auto& [file, best] : files) {
     const PoseGraph g = readGraph(std::string(TORO_DATASETS_DIR) + "/" + file);
     const double chi2 = g2oChi2(g), sesync = seSyncObjective(g);

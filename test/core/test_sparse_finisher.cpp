@@ -8,6 +8,7 @@
 #include <random>
 #include <sstream>
 
+#include "shared_datasets.h"
 #include "toro_ros/core/finish_residuals.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
@@ -254,6 +255,7 @@ TEST(SparseFinisher, RepairedIndefiniteInformationDoesNotDiverge) {
 class FinishOnDatasets : public ::testing::TestWithParam<std::pair<const char*, double>> {};
 
 TEST_P(FinishOnDatasets, ReachesTheBestKnownChi2FromTheFileGuess) {
+  TORO_REQUIRE_DATASETS();
   const std::string path = std::string(TORO_DATASETS_DIR) + "/" + GetParam().first;
   PoseGraph g = readGraph(path);
   const double at_file = g2oChi2(g);

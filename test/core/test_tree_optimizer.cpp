@@ -3,6 +3,7 @@
 #include <cmath>
 #include <fstream>
 
+#include "shared_datasets.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/synthetic.h"
@@ -239,14 +240,13 @@ double chi2After100Iterations(const std::string& file) {
   return g2oChi2(opt.graph());
 }
 
-bool datasetsAvailable() { return std::ifstream(std::string(TORO_DATASETS_DIR) + "/sphere2500.g2o").good(); }
 
 }  // namespace
 
 // Bounds: what the original TORO 3D program reaches in 100 iterations from the same start (the
 // issue's reference figures); ours must be no worse.
 TEST(TreeOptimizerDatasets, Sphere2500After100IterationsBeatsOriginalToro) {
-  if (!datasetsAvailable()) GTEST_SKIP() << "datasets not found at " << TORO_DATASETS_DIR;
+  TORO_REQUIRE_DATASETS();
   const double chi2 = chi2After100Iterations(std::string(TORO_DATASETS_DIR) + "/sphere2500.g2o");
   std::cout << "sphere2500 chi2 after 100 iterations: " << chi2 << "\n";
   EXPECT_LT(chi2, 2655.0);
@@ -254,7 +254,7 @@ TEST(TreeOptimizerDatasets, Sphere2500After100IterationsBeatsOriginalToro) {
 }
 
 TEST(TreeOptimizerDatasets, ParkingGarageAfter100IterationsBeatsOriginalToro) {
-  if (!datasetsAvailable()) GTEST_SKIP() << "datasets not found at " << TORO_DATASETS_DIR;
+  TORO_REQUIRE_DATASETS();
   const double chi2 = chi2After100Iterations(std::string(TORO_DATASETS_DIR) + "/parking-garage.g2o");
   std::cout << "parking-garage chi2 after 100 iterations: " << chi2 << "\n";
   EXPECT_LT(chi2, 32.5);
