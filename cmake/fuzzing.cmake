@@ -2,14 +2,22 @@
 # - Every build: a replay executable per target runs the committed corpus and the regression inputs
 #   (crashes found earlier) through the target; it is a ctest test, so no compiler support is needed.
 # - With clang and -DTORO_BUILD_FUZZERS=ON: real libFuzzer binaries (ASan+UBSan), run by scripts/fuzz.sh.
+# A target that includes a toro_ros/pipeline header links the pipeline library (and so ROS'
+# serialisation and message types); the others link only the core.
 option(TORO_BUILD_FUZZERS "Build libFuzzer targets (needs clang)" OFF)
 file(GLOB TORO_FUZZ_SOURCES CONFIGURE_DEPENDS ${PROJECT_SOURCE_DIR}/test/fuzz/fuzz_*.cpp)
 foreach(src ${TORO_FUZZ_SOURCES})
   get_filename_component(name ${src} NAME_WE)
   string(REGEX REPLACE "^fuzz_" "" target_name ${name})
+  file(STRINGS ${src} uses_pipeline REGEX "#include \"toro_ros/pipeline/")
+  if(uses_pipeline)
+    set(fuzz_library toro_pipeline)
+  else()
+    set(fuzz_library toro_core)
+  endif()
   if(CATKIN_ENABLE_TESTING)
     add_executable(${name}_replay ${src} ${PROJECT_SOURCE_DIR}/test/fuzz/replay_main.cpp)
-    target_link_libraries(${name}_replay toro_core)
+    target_link_libraries(${name}_replay ${fuzz_library})
     add_dependencies(tests ${name}_replay)
     add_test(NAME ${name}_replay
              COMMAND ${name}_replay ${PROJECT_SOURCE_DIR}/test/fuzz/corpus/${target_name}
@@ -22,6 +30,6 @@ foreach(src ${TORO_FUZZ_SOURCES})
     add_executable(${name} ${src})
     target_compile_options(${name} PRIVATE -fsanitize=fuzzer,address,undefined)
     target_link_options(${name} PRIVATE -fsanitize=fuzzer,address,undefined)
-    target_link_libraries(${name} toro_core)
+    target_link_libraries(${name} ${fuzz_library})
   endif()
 endforeach()
