@@ -213,6 +213,8 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   status.add("loop closures applied", s->counters.loop_closures_applied);
   status.add("loop closures refused", s->counters.loop_closures_refused);
   status.add("loop closures pending", s->pending_loop_closures);
+  // The same counts as ~get_status's refused_reasons/refused_counts, one key per reason.
+  for (const auto& [reason, count] : s->counters.refused_by_reason) status.add("refused: " + reason, count);
   status.add("last chi2", s->chi2);
   status.add("last optimization sec", s->last_optimization_sec);
 }

@@ -348,8 +348,15 @@ TEST(MapCorrector, UnknownStampRefusedFutureStampAppliedWhenOdometryArrives) {
   client->publishLoopClosure(unknown);
   ASSERT_TRUE(Client::waitFor(
       [&] { return client->status().loop_closures_refused == before.loop_closures_refused + 1; }));
-  EXPECT_EQ(refusedCount(client->status(), "loop closure: no keyframe within tolerance"),
-            refusedCount(before, "loop closure: no keyframe within tolerance") + 1);
+  const std::uint64_t refused = refusedCount(client->status(), "loop closure: no keyframe within tolerance");
+  EXPECT_EQ(refused, refusedCount(before, "loop closure: no keyframe within tolerance") + 1);
+  // Diagnostics carry the same count under "refused: <reason>".
+  EXPECT_TRUE(client->waitObserved([&](const Observed& o) {
+    if (!o.diagnostics) return false;
+    for (const auto& kv : o.diagnostics->values)
+      if (kv.key == "refused: loop closure: no keyframe within tolerance") return kv.value == std::to_string(refused);
+    return false;
+  }));
 
   // Drive on from the end of the scenario (the loaded graph ends there) for 3 more seconds.
   const nav_msgs::Odometry& end = scenario.odometry.back();
