@@ -1,3 +1,5 @@
+#include <unistd.h>
+
 #include <filesystem>
 #include <iostream>
 
@@ -22,7 +24,7 @@ const std::vector<ArgSpec> kSpecs = {
      "truth file for scoring (<stem>.truth.g2o from graph_to_bag). Default: <bag stem>.truth.g2o if "
      "it exists"},
     {"no-curve", "do not record chi2 after each final pass (saves one extra run of the final passes)", false},
-    {"quiet", "no progress bar", false},
+    {"quiet", "no progress bar (there is none either when stderr is not a terminal)", false},
 };
 
 OfflineOptions optionsFromArgs(const ParsedArgs& a) {
@@ -33,7 +35,8 @@ OfflineOptions optionsFromArgs(const ParsedArgs& a) {
   o.topic_namespace = a.text("namespace", o.topic_namespace);
   o.final_iterations = a.integer("final-iterations", o.final_iterations);
   o.iteration_curve = !a.has("no-curve");
-  o.progress = !a.has("quiet");
+  // A progress bar only for a terminal: in a log file its redraws would be one long line.
+  o.progress = !a.has("quiet") && isatty(STDERR_FILENO);
   const std::string beside = bagStem(o.bag_path) + ".truth.g2o";
   o.truth_path = a.text("truth", std::filesystem::exists(beside) ? beside : "");
   return o;
