@@ -150,13 +150,18 @@ RobotTimeline makeTimeline(const toro::PoseGraph& graph, const GraphToBagOptions
   t.odom_T_base.push_back(toro::Pose3());
   t.sample_of_keyframe.push_back(0);
   for (std::size_t k = 0; k + 1 < ids.size(); ++k) {
-    const auto it = first_between.find({ids[k], ids[k + 1]});
+    // Forward k -> k+1, else the reverse (TORO's sphere files have some odometry edges backwards).
+    auto it = first_between.find({ids[k], ids[k + 1]});
+    const bool reversed = it == first_between.end();
+    if (reversed) it = first_between.find({ids[k + 1], ids[k]});
     if (it == first_between.end())
-      throw std::runtime_error(source + ": no constraint from node " + std::to_string(ids[k]) + " to node " +
-                               std::to_string(ids[k + 1]) +
+      throw std::runtime_error(source + ": no constraint between node " + std::to_string(ids[k]) +
+                               " and node " + std::to_string(ids[k + 1]) +
                                " (consecutive ids): the odometry chain is broken");
-    const toro::Pose3& step = graph.constraints()[it->second].measurement;
+    const toro::Pose3& measurement = graph.constraints()[it->second].measurement;
+    const toro::Pose3 step = reversed ? measurement.inverse() : measurement;
     t.odometry_constraint.push_back(it->second);
+    t.odometry_reversed.push_back(reversed);
     t.is_loop_closure[it->second] = false;
     t.odom_T_base.push_back(t.odom_T_base.back() * step);
     t.sample_of_keyframe.push_back(t.sample_of_keyframe.back() + stepSamples(step, o));

@@ -27,8 +27,25 @@ void addCovariances(const toro::PoseGraph& graph, RobotTimeline* t) {
   t->covariance.assign(1, toro::Matrix6::Zero());
   t->step_covariance.clear();
   for (std::size_t k = 0; k + 1 < t->ids.size(); ++k) {
-    const toro::Constraint& step = graph.constraints()[t->odometry_constraint[k]];
-    t->step_covariance.push_back(covarianceFromInformation(step.information));
+    const toro::Constraint& c = graph.constraints()[t->odometry_constraint[k]];
+    toro::Matrix6 covariance = covarianceFromInformation(c.information);
+    if (t->odometry_reversed[k]) {
+      // With S the forward step and Z = S^-1 the reverse constraint's measurement, the reverse
+      // error Z^-1 Xj^-1 Xi is S (S^-1 Xi^-1 Xj)^-1 S^-1: to first order -Ad(S) times the forward
+      // error.  So the forward covariance is Ad(Z) Sigma Ad(Z)^T ((translation, rotation) order,
+      // rotation in rad; Ad(X) = [R, [p]x R; 0, R] for X = (R, p)).
+      const toro::Pose3& s = c.measurement;
+      toro::Matrix6 ad = toro::Matrix6::Zero();
+      const toro::Matrix3 r = s.rotationMatrix();
+      toro::Matrix3 p_cross;
+      p_cross << 0, -s.translation().z(), s.translation().y(), s.translation().z(), 0, -s.translation().x(),
+          -s.translation().y(), s.translation().x(), 0;
+      ad.block<3, 3>(0, 0) = r;
+      ad.block<3, 3>(0, 3) = p_cross * r;
+      ad.block<3, 3>(3, 3) = r;
+      covariance = ad * covariance * ad.transpose();
+    }
+    t->step_covariance.push_back(covariance);
     const toro::Matrix6 b = blockRotation(t->odom_T_base[k + 1]);
     t->covariance.push_back(t->covariance.back() + b * t->step_covariance.back() * b.transpose());
   }

@@ -4,11 +4,13 @@
 
 #include <filesystem>
 #include <fstream>
+#include <random>
 
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 
 #include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/metrics.h"
 #include "toro_ros/offline/flat_yaml.h"
 #include "toro_ros/offline/graph_to_bag.h"
 #include "toro_ros/offline/robot_messages.h"
@@ -204,6 +206,39 @@ TEST_F(GraphToBagTest, OptionErrorsNameTheOption) {
   }
 }
 
+TEST_F(GraphToBagTest, ReversedOdometryConstraintGivesTheEquivalentForwardStep) {
+  // Constraint 1 -> 0 measuring Z: the step 0 -> 1 is Z^-1, and its covariance must weigh a small
+  // error of node 1 as the reversed constraint does (same chi2 to second order).
+  const toro::Pose3 step = toro::Pose3::fromRollPitchYaw(1.0, 0.3, -0.2, 0.1, -0.05, 0.4);
+  toro::Matrix6 information;
+  information << 50, 3, 1, 2, 0, 1, 3, 40, 2, 0, 1, 0, 1, 2, 60, 1, 0, 2, 2, 0, 1, 900, 20, 5, 0, 1, 0, 20,
+      800, 10, 1, 0, 2, 5, 10, 700;
+  toro::PoseGraph reversed;
+  reversed.addNode(0, toro::Pose3());
+  reversed.addNode(1, step);
+  reversed.addConstraint(toro::Constraint{1, 0, step.inverse(), information});
+  const RobotTimeline t = makeTimeline(reversed, options_, "reversed.g2o");
+  ASSERT_TRUE(t.odometry_reversed[0]);
+  EXPECT_LT((t.odom_T_base[1].translation() - step.translation()).norm(), 1e-12);
+  const toro::Matrix6 forward_information =
+      informationFromCovariance(t.step_covariance[0], DefaultStddev{}).information;
+  toro::PoseGraph forward = reversed;
+  forward.clear();
+  forward.addNode(0, toro::Pose3());
+  forward.addNode(1, step);
+  forward.addConstraint(toro::Constraint{0, 1, step, forward_information});
+  std::mt19937 rng(3);
+  std::normal_distribution<double> n(0.0, 1e-4);
+  for (int trial = 0; trial < 10; ++trial) {
+    const toro::Pose3 moved = step * toro::Pose3::fromAngleAxis(toro::Vector3(n(rng), n(rng), n(rng)),
+                                                                toro::Vector3(n(rng), n(rng), n(rng)));
+    reversed.setPose(1, moved);
+    forward.setPose(1, moved);
+    const double a = toro::constraintChi2(reversed, 0), b = toro::constraintChi2(forward, 0);
+    EXPECT_NEAR(a, b, 1e-3 * a) << "trial " << trial;
+  }
+}
+
 TEST_F(GraphToBagTest, BrokenOdometryChainIsAnErrorNamingTheFileAndNodes) {
   toro::PoseGraph g;
   g.addNode(0, toro::Pose3());
@@ -217,7 +252,7 @@ TEST_F(GraphToBagTest, BrokenOdometryChainIsAnErrorNamingTheFileAndNodes) {
   } catch (const std::runtime_error& e) {
     const std::string what = e.what();
     EXPECT_NE(what.find("broken.g2o"), std::string::npos) << what;
-    EXPECT_NE(what.find("node 1 to node 2"), std::string::npos) << what;
+    EXPECT_NE(what.find("between node 1 and node 2"), std::string::npos) << what;
   }
 }
 

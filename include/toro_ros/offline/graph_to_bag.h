@@ -3,9 +3,9 @@
 // toro_ros/LoopClosure at the moment the robot reaches the later of their two poses.
 //
 // Model.  The graph's nodes in id order are the robot's keyframes.  The constraint from node k to
-// node k+1 (the first one, if parallel) is the odometry step; the odometry a robot would report is
-// the chain of those steps composed from the identity (so it drifts as the dataset's odometry
-// does), interpolated between keyframes (slerp / lerp).  The pose covariance grows along the chain
+// node k+1 (the first one, if parallel; else one from k+1 to k, inverted) is the odometry step; the odometry
+// a robot would report is the chain of those steps composed from the identity (so it drifts as the dataset's
+// odometry does), interpolated between keyframes (slerp / lerp).  The pose covariance grows along the chain
 // (each step's covariance, from its information, rotated into the odom frame and added), so the
 // node's default "difference" odometry covariance mode recovers each step's information exactly.
 // Every other constraint becomes a LoopClosure naming its two poses by their stamps.
@@ -63,6 +63,7 @@ struct RobotTimeline {
   std::vector<toro::NodeId> ids;                 // keyframes in id order
   std::vector<toro::Pose3> odom_T_base;          // odometry chain per keyframe
   std::vector<std::size_t> odometry_constraint;  // constraint index of step k -> k+1
+  std::vector<bool> odometry_reversed;           // ... which goes from k+1 to k (step = its inverse)
   std::vector<bool> is_loop_closure;             // per constraint index
   std::vector<long> sample_of_keyframe;          // odometry sample index of each keyframe
   std::vector<toro::Matrix6> step_covariance;    // of step k -> k+1, in k+1's body frame (msg units)
@@ -76,7 +77,7 @@ struct RobotTimeline {
 };
 
 // Throws std::runtime_error naming `source` if the graph has no odometry chain (a pair of
-// consecutive ids without a constraint from the first to the second).
+// consecutive ids without a constraint between them).
 RobotTimeline makeTimeline(const toro::PoseGraph& graph, const GraphToBagOptions& options,
                            const std::string& source);
 
