@@ -106,6 +106,8 @@ void readPipeline(ParamReader& r, PipelineOptions& p, OptionsReport* report) {
   r.read("optimization_service_default_iterations", p.optimization.service_default_iterations);
   r.read("time_jump_reset_sec", p.time_jump_reset_sec);
   r.read("odometry_history_sec", p.odometry_history_sec);
+  r.read("loop_closure_gate_confidence", p.loop_closure_gate_confidence);
+  r.read("loop_closure_gate_variance_factor", p.loop_closure_gate_variance_factor);
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include <limits>
 #include <stdexcept>
 
+#include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/pipeline/msg_conversion.h"
@@ -14,6 +15,7 @@ namespace toro_ros {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr int kMaxRecheckRounds = 10;
 
 // Seconds of wall time spent in `f`; reported only, never used to decide anything.
 template <class F>
@@ -55,6 +57,10 @@ std::string PipelineOptions::validate() const {
     return "time_jump_reset_sec must be >= 0";
   if (!(std::isfinite(odometry_history_sec) && odometry_history_sec >= 0))
     return "odometry_history_sec must be >= 0";
+  if (!(loop_closure_gate_confidence >= 0 && loop_closure_gate_confidence < 1))
+    return "loop_closure_gate_confidence must be in [0, 1) (0 disables the gate)";
+  if (!(std::isfinite(loop_closure_gate_variance_factor) && loop_closure_gate_variance_factor > 0))
+    return "loop_closure_gate_variance_factor must be > 0";
   return "";
 }
 
@@ -68,6 +74,11 @@ Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn)
       last_chi2_(kNaN) {
   const std::string error = options.validate();
   if (!error.empty()) throw std::invalid_argument("invalid pipeline options: " + error);
+  // A loop closure's residual has 6 components (translation and rotation).
+  gate_threshold_ = options.loop_closure_gate_confidence > 0
+                        ? toro::chiSquareQuantile(options.loop_closure_gate_confidence, 6) *
+                              options.loop_closure_gate_variance_factor
+                        : std::numeric_limits<double>::infinity();
 }
 
 void Pipeline::refuse(const std::string& category, const std::string& detail) {
@@ -175,9 +186,11 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
                   keyframeToStamp(match.to, msg.stamp_to).inverse();
   }
   toro::Constraint c{match.from, match.to, measurement, info.information};
+  if (gateEnabled()) beginGate(msg);
   try {
     optimizer_.addConstraint(c);
   } catch (const toro::GraphError& e) {
+    before_gate_.reset();
     MatchResult refused = match;
     refused.reason = refusal::kGraph;
     refused.detail = e.what();
@@ -204,6 +217,14 @@ void Pipeline::releasePending() {
 
 bool Pipeline::hasScheduledWork() const { return !paused_ && (affected_pending_ || full_passes_left_ > 0); }
 
+void Pipeline::runAffectedPass() {
+  last_optimization_sec_ = timed([&] { optimizer_.iterateAffected(1); });
+  ++revision_;
+  ++counters_.optimization_passes;
+  affected_pending_ = false;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+}
+
 void Pipeline::runFullPass() {
   last_optimization_sec_ = timed([&] { optimizer_.iterate(); });
   ++revision_;
@@ -217,11 +238,8 @@ void Pipeline::runFullPass() {
 bool Pipeline::runScheduledOptimization() {
   if (paused_ || optimizer_.graph().empty()) return false;
   if (affected_pending_) {
-    last_optimization_sec_ = timed([&] { optimizer_.iterateAffected(1); });
-    ++revision_;
-    ++counters_.optimization_passes;
-    affected_pending_ = false;
-    last_chi2_ = toro::g2oChi2(optimizer_.graph());
+    runAffectedPass();
+    settleGate();
     return true;
   }
   if (full_passes_left_ == 0 && loop_closures_since_full_ > 0 && options_.optimization.full_iterations > 0) {
@@ -243,6 +261,7 @@ bool Pipeline::runScheduledOptimization() {
   if (full_passes_left_ == 0) return false;
   --full_passes_left_;
   runFullPass();
+  if (full_passes_left_ == 0) recheckLoopClosures();
   return true;
 }
 
@@ -293,6 +312,7 @@ OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) 
     r.message = "nothing to optimise: the graph has no constraints";
     return r;
   }
+  settleGate();  // the newest loop closure's pass and test come first, as on the schedule
   affected_pending_ = false;
   full_passes_left_ = 0;
   loop_closures_since_full_ = 0;
@@ -302,7 +322,12 @@ OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) 
   r.chi2_before = toro::g2oChi2(optimizer_.graph());
   optimizer_.setIteration(0);
   r.time_sec = timed([&] {
-    for (int i = 0; i < r.iterations; ++i) optimizer_.iterate();
+    // A loop closure removed by the re-check leaves the others to settle: passes again (bounded).
+    for (int round = 0; round < kMaxRecheckRounds; ++round) {
+      for (int i = 0; i < r.iterations; ++i) optimizer_.iterate();
+      if (!recheckLoopClosures()) break;
+      optimizer_.setIteration(0);
+    }
   });
   optimizer_.clearAffected();
   ++revision_;
@@ -330,6 +355,8 @@ void Pipeline::clearGraph() {
   odometry_history_.clear();
   keyframes_.clear();
   is_loop_closure_.clear();
+  before_gate_.reset();
+  rejected_.clear();
   newest_odometry_ = ros::Time();
   next_id_ = 0;
   affected_pending_ = false;
@@ -363,6 +390,10 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
     s->edges.push_back(
         SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0});
   }
+  for (const RejectedLoopClosure& r : rejected_)
+    if (g.hasNode(r.constraint.from) && g.hasNode(r.constraint.to))
+      s->rejected_edges.push_back(
+          SnapshotEdge{g.indexOf(r.constraint.from), g.indexOf(r.constraint.to), true, r.chi2});
   if (!records.empty()) {
     s->has_map_T_odom = true;
     s->map_T_odom = g.node(records.size() - 1).pose * records.back().odom_T_base.inverse();
@@ -384,6 +415,7 @@ PipelineStatus Pipeline::status() const {
   s.last_optimization_sec = last_optimization_sec_;
   s.paused = paused_;
   s.counters = counters_;
+  s.rejected = rejected_;
   return s;
 }
 

@@ -1,5 +1,6 @@
 // Pipeline::saveGraph / loadGraph: the graph file through the core's graph_io, the keyframe stamps
 // and loop-closure flags through the sidecar (persistence.h).
+#include <cstdio>
 #include <fstream>
 #include <stdexcept>
 
@@ -35,6 +36,10 @@ std::string checkSidecar(const Sidecar& s, const toro::PoseGraph& graph) {
   for (std::size_t c : s.loop_closures)
     if (c >= graph.numConstraints())
       return "sidecar names loop closure " + std::to_string(c) + " beyond the graph";
+  for (const RejectedLoopClosure& r : s.rejected)
+    if (!graph.hasNode(r.constraint.from) || !graph.hasNode(r.constraint.to))
+      return "sidecar names a rejected loop closure " + std::to_string(r.constraint.from) + " -> " +
+             std::to_string(r.constraint.to) + " between unknown keyframes";
   return "";
 }
 
@@ -42,15 +47,23 @@ std::string checkSidecar(const Sidecar& s, const toro::PoseGraph& graph) {
 
 std::string Pipeline::saveGraph(const std::string& path) const {
   if (optimizer_.graph().empty()) return "nothing to save: the graph is empty";
+  // Both written to temporary files first and renamed in place (sidecar first, graph last), so a
+  // crash or kill while saving (autosave) leaves the previous pair intact.
+  const std::string graph_tmp = temporaryPath(path), sidecar_tmp = temporaryPath(sidecarPath(path));
   try {
-    toro::writeGraph(optimizer_.graph(), path);
+    toro::writeGraph(optimizer_.graph(), graph_tmp);
     Sidecar s;
     s.keyframes = keyframes_.records();
     for (std::size_t c = 0; c < is_loop_closure_.size(); ++c)
       if (is_loop_closure_[c]) s.loop_closures.push_back(c);
-    writeSidecar(sidecarPath(path), s);
+    s.rejected = rejected_;
+    writeSidecar(sidecar_tmp, s);
+    commitFile(sidecar_tmp, sidecarPath(path));
+    commitFile(graph_tmp, path);
   } catch (const std::exception& e) {
-    return e.what();
+    std::remove(graph_tmp.c_str());
+    std::remove(sidecar_tmp.c_str());
+    return "cannot save " + path + ": " + e.what();
   }
   return "";
 }
@@ -76,6 +89,7 @@ std::string Pipeline::loadGraph(const std::string& path) {
   for (const KeyframeRecord& k : sidecar.keyframes) keyframes_.append(k);
   is_loop_closure_.assign(graph.numConstraints(), false);
   for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;
+  rejected_ = sidecar.rejected;
   const KeyframeRecord& newest = keyframes_.newest();
   keyframer_.setLast(OdometrySample{newest.stamp, newest.odom_T_base, toro::Matrix6::Zero()});
   newest_odometry_ = newest.stamp;

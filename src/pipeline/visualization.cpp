@@ -106,8 +106,14 @@ visualization_msgs::MarkerArray markersFromSnapshot(const Snapshot& snapshot, co
       odometry.points.insert(odometry.points.end(), {a, b});
     }
   }
+  Marker rejected = baseMarker(map_frame, stamp, marker_ns::kRejectedLoopClosures, Marker::LINE_LIST);
+  rejected.scale.x = options.edge_width_m;
+  rejected.color = rgba(1.0f, 0.0f, 1.0f, 0.6f);
+  for (const SnapshotEdge& e : snapshot.rejected_edges)
+    rejected.points.insert(rejected.points.end(), {point(snapshot.keyframes[e.from_index].map_T_base),
+                                                   point(snapshot.keyframes[e.to_index].map_T_base)});
   // rviz rejects empty point lists with a warning; a marker with nothing to draw is deleted instead.
-  for (Marker* m : {&nodes, &odometry, &loops}) {
+  for (Marker* m : {&nodes, &odometry, &loops, &rejected}) {
     if (m->points.empty()) m->action = Marker::DELETE;
     out.markers.push_back(*m);
   }

@@ -35,7 +35,10 @@ TEST(Visualization, PathHasOnePoseAKeyframeWithItsStamp) {
 
 TEST(Visualization, MarkersHaveStableNamespacesAndResidualColours) {
   const auto a = markersFromSnapshot(snapshot(), "map", ros::Time(20), MarkerOptions{}, false);
-  ASSERT_EQ(a.markers.size(), 3u);
+  ASSERT_EQ(a.markers.size(), 4u);  // with the (empty, so DELETE) rejected loop closures
+  const Marker* rejected = find(a, marker_ns::kRejectedLoopClosures);
+  ASSERT_TRUE(rejected);
+  EXPECT_EQ(rejected->action, Marker::DELETE);
   const Marker* nodes = find(a, marker_ns::kNodes);
   const Marker* odom = find(a, marker_ns::kOdometryEdges);
   const Marker* loops = find(a, marker_ns::kLoopClosures);
@@ -56,9 +59,24 @@ TEST(Visualization, MarkersHaveStableNamespacesAndResidualColours) {
   EXPECT_FLOAT_EQ(loops->colors[2].g, 1.0f);
 }
 
+TEST(Visualization, RejectedLoopClosuresHaveTheirOwnNamespaceAndColour) {
+  Snapshot s = snapshot();
+  s.rejected_edges.push_back(SnapshotEdge{0, 3, true, 250.0});
+  const auto a = markersFromSnapshot(s, "map", ros::Time(20), MarkerOptions{}, false);
+  const Marker* rejected = find(a, marker_ns::kRejectedLoopClosures);
+  ASSERT_TRUE(rejected);
+  EXPECT_EQ(rejected->action, Marker::ADD);
+  ASSERT_EQ(rejected->points.size(), 2u);
+  EXPECT_DOUBLE_EQ(rejected->points[1].y, 6.0);  // keyframe 3, as in the path
+  EXPECT_FLOAT_EQ(rejected->color.r, 1.0f);
+  EXPECT_FLOAT_EQ(rejected->color.g, 0.0f);
+  EXPECT_FLOAT_EQ(rejected->color.b, 1.0f);
+  EXPECT_EQ(find(a, marker_ns::kLoopClosures)->points.size(), 4u);  // accepted ones unchanged
+}
+
 TEST(Visualization, DeleteAllComesFirstAfterAReset) {
   const auto a = markersFromSnapshot(snapshot(), "map", ros::Time(20), MarkerOptions{}, true);
-  ASSERT_EQ(a.markers.size(), 4u);
+  ASSERT_EQ(a.markers.size(), 5u);
   EXPECT_EQ(a.markers[0].action, Marker::DELETEALL);
 }
 

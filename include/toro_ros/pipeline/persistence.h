@@ -4,18 +4,23 @@
 // '#' comments):
 //   KEYFRAME id sec nsec x y z qx qy qz qw     (odom_T_base of the keyframe)
 //   LOOP_CLOSURE constraint_index
+//   REJECTED from to sec nsec chi2 x y z qx qy qz qw i11 i12 .. i16 i22 .. i66
+//     (a loop closure the chi-square gate refused: keyframe ids, message stamp, its chi2 when
+//     refused, the measurement from_T_to and the upper triangle of its g2o-ordered information)
 #pragma once
 
 #include <string>
 #include <vector>
 
 #include "toro_ros/pipeline/loop_closure_matcher.h"
+#include "toro_ros/pipeline/snapshot.h"
 
 namespace toro_ros {
 
 struct Sidecar {
   std::vector<KeyframeRecord> keyframes;
   std::vector<std::size_t> loop_closures;  // constraint indices
+  std::vector<RejectedLoopClosure> rejected;
 };
 
 std::string sidecarPath(const std::string& graph_path);
@@ -23,5 +28,13 @@ std::string sidecarPath(const std::string& graph_path);
 void writeSidecar(const std::string& path, const Sidecar& sidecar);
 // Throws std::runtime_error "path:line: why" for a malformed line or an unreadable file.
 Sidecar readSidecar(const std::string& path);
+
+// A temporary name in the same directory with the same extension (the graph format goes by it):
+// "dir/name.g2o" -> "dir/.name.tmp<pid>.g2o".
+std::string temporaryPath(const std::string& path);
+// Flushes the file's data to the disk (fsync) and renames it over `path`, then syncs the
+// directory, so that a crash leaves either the old or the new file, never a partial one.
+// Throws std::runtime_error naming the path.
+void commitFile(const std::string& temporary, const std::string& path);
 
 }  // namespace toro_ros

@@ -19,7 +19,8 @@ struct PipelineCounters {
   std::uint64_t odometry_refused = 0;
   std::uint64_t loop_closures_received = 0;
   std::uint64_t loop_closures_applied = 0;
-  std::uint64_t loop_closures_refused = 0;
+  std::uint64_t loop_closures_refused = 0;   // includes the rejected ones
+  std::uint64_t loop_closures_rejected = 0;  // applied, then refused by the chi-square gate
   std::uint64_t time_jump_resets = 0;
   std::uint64_t resets = 0;               // all resets (time jumps, service, load)
   std::uint64_t optimization_passes = 0;  // full and affected passes run
@@ -40,11 +41,19 @@ struct SnapshotEdge {
   double chi2 = 0.0;  // g2o chi2 of this constraint at the corrected poses (loop closures only)
 };
 
+// A loop closure the chi-square gate refused (kept for the graph file, the markers and ~get_status).
+struct RejectedLoopClosure {
+  toro::Constraint constraint;  // as it was applied: keyframe ids, measurement, information
+  ros::Time stamp;              // header stamp of its message
+  double chi2 = 0.0;            // its g2o chi2 after its affected pass
+};
+
 struct Snapshot {
   std::uint64_t generation = 0;  // increases with every snapshot the pipeline makes
   std::uint64_t epoch = 0;       // increases with every reset/load: publishers clear old markers
   std::vector<SnapshotKeyframe> keyframes;
   std::vector<SnapshotEdge> edges;
+  std::vector<SnapshotEdge> rejected_edges;  // loop closures the gate refused (chi2 when refused)
   // map_T_odom = (corrected pose of the newest keyframe) * (its odometry pose)^-1; identity and
   // has_map_T_odom = false before the first keyframe.
   bool has_map_T_odom = false;

@@ -24,6 +24,7 @@ namespace marker_ns {
 constexpr const char* kNodes = "keyframes";
 constexpr const char* kOdometryEdges = "odometry_edges";
 constexpr const char* kLoopClosures = "loop_closures";
+constexpr const char* kRejectedLoopClosures = "rejected_loop_closures";  // magenta, by the gate
 }  // namespace marker_ns
 
 nav_msgs::Path pathFromSnapshot(const Snapshot& snapshot, const std::string& map_frame,
