@@ -273,7 +273,10 @@ TEST(Pipeline, SaveAndLoadInToroFormatAndWithoutSidecar) {
   ASSERT_EQ(r.loadGraph(path), "");
   EXPECT_TRUE(r.keyframes().newest().stamp.isZero());
   std::size_t loops = 0;
-  for (const auto& e : r.makeSnapshot()->edges) loops += e.loop_closure;
+  // The snapshot must outlive the loop: ranging over makeSnapshot()->edges would read the edges of
+  // a temporary already destroyed (found by the ASan build).
+  const std::shared_ptr<const Snapshot> snapshot = r.makeSnapshot();
+  for (const auto& e : snapshot->edges) loops += e.loop_closure;
   EXPECT_EQ(loops, 1u);
   std::remove(path.c_str());
   rmdir(dir_template);
