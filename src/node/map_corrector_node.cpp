@@ -172,9 +172,14 @@ void MapCorrectorNode::tfTimerCallback(const ros::TimerEvent&) {
   const std::shared_ptr<const Snapshot> s = snapshot();
   const ros::Time now = ros::Time::now();
   if (!s->has_map_T_odom || now.isZero()) return;  // nothing yet, or sim time before the first /clock
-  geometry_msgs::TransformStamped t;
   // Stamped ahead so that tf lookups at "now" made by other nodes find it before the next tick.
-  t.header.stamp = now + ros::Duration(options_.transform_tolerance_sec);
+  const ros::Time stamp = now + ros::Duration(options_.transform_tolerance_sec);
+  // Under sim time the timer can fire twice between /clock ticks; the same stamp again would only
+  // make tf warn TF_REPEATED_DATA.  (A stamp behind the last one is a clock jump: publish it.)
+  if (stamp == last_tf_stamp_) return;
+  last_tf_stamp_ = stamp;
+  geometry_msgs::TransformStamped t;
+  t.header.stamp = stamp;
   t.header.frame_id = options_.map_frame;
   t.child_frame_id = options_.odom_frame;
   t.transform = transformToMsg(s->map_T_odom);

@@ -97,6 +97,8 @@ class MapCorrectorNode {
   std::vector<ros::ServiceServer> services_;
   ros::CallbackQueue tf_queue_, service_queue_;
   ros::Timer tf_timer_, visualization_timer_, diagnostics_timer_;
+  // Stamp of the last map->odom sent; only the tf timer's callback (one thread) touches it.
+  ros::Time last_tf_stamp_;
   std::unique_ptr<ros::AsyncSpinner> tf_spinner_, service_spinner_;
   diagnostic_updater::Updater diagnostics_;
   std::thread worker_;
