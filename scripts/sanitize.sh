@@ -60,7 +60,7 @@ runThread() {
   rm -rf "${build}/sanitizer-reports" && mkdir -p "${build}/sanitizer-reports"
   (cd "${build}" &&
     TSAN_OPTIONS="log_path=${build}/sanitizer-reports/report:second_deadlock_stack=1:suppressions=${REPO_ROOT}/test/sanitizers/tsan.supp" \
-    ctest --output-on-failure -R 'rostest_test_node|test_pipeline|test_load|test_bad_input' </dev/null)
+    ctest --output-on-failure -R 'rostest_test_node|test_pipeline$|test_load$|test_bad_input$' </dev/null)
   checkReports "${build}" "TSan"
 }
 
