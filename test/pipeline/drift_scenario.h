@@ -11,6 +11,7 @@
 #include "toro_ros/LoopClosure.h"
 #include "toro_ros/core/pose3.h"
 #include "toro_ros/pipeline/msg_conversion.h"
+#include "toro_ros/pipeline/pipeline.h"
 
 namespace toro_ros {
 namespace testing {
@@ -19,6 +20,19 @@ struct DriftScenario {
   std::vector<nav_msgs::Odometry> odometry;  // odom_T_base as the drifting odometry reports it
   std::vector<toro::Pose3> truth;            // world_T_base, world = odom at the start
 };
+
+// The options the pipeline tests start from: keyframes every 0.5 m or 0.5 rad (no time trigger),
+// loop-closure stamps matched within 0.15 s, full rounds by keyframe count only.  Each test adds
+// what it is about.
+inline PipelineOptions baseTestOptions() {
+  PipelineOptions o;
+  o.keyframer.distance_m = 0.5;
+  o.keyframer.angle_rad = 0.5;
+  o.keyframer.interval_sec = 0;
+  o.matcher.stamp_tolerance_sec = 0.15;
+  o.optimization.full_every_sec = 0;
+  return o;
+}
 
 inline nav_msgs::Odometry odometryMsg(const ros::Time& stamp, const toro::Pose3& odom_T_base) {
   nav_msgs::Odometry m;

@@ -21,15 +21,7 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-PipelineOptions options() {
-  PipelineOptions o;
-  o.keyframer.distance_m = 0.5;
-  o.keyframer.angle_rad = 0.5;
-  o.keyframer.interval_sec = 0;
-  o.matcher.stamp_tolerance_sec = 0.15;
-  o.optimization.full_every_sec = 0;
-  return o;
-}
+PipelineOptions options() { return toro_ros::testing::baseTestOptions(); }
 
 // A pipeline with warnings collected and odometry along x at 1 m/s, every 0.1 s from t = 100 s.
 struct Fixture {

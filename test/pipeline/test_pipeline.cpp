@@ -19,13 +19,8 @@ using toro_ros::testing::trueLoopClosure;
 namespace {
 
 PipelineOptions options() {
-  PipelineOptions o;
-  o.keyframer.distance_m = 0.5;
-  o.keyframer.angle_rad = 0.5;
-  o.keyframer.interval_sec = 0;
-  o.matcher.stamp_tolerance_sec = 0.15;
+  PipelineOptions o = toro_ros::testing::baseTestOptions();
   o.optimization.full_every_keyframes = 10;
-  o.optimization.full_every_sec = 0;
   o.optimization.full_iterations = 10;
   return o;
 }
