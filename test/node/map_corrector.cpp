@@ -257,8 +257,12 @@ TEST(MapCorrector, PathAndMarkersShowTheCorrectedGraph) {
   for (const auto& m : client->observed.markers->markers) {
     EXPECT_EQ(m.header.frame_id, "map");
     EXPECT_EQ(m.id, 0);
-    if (m.ns == "keyframes") EXPECT_EQ(m.points.size(), keyframes);
-    if (m.ns == "odometry_edges") EXPECT_EQ(m.points.size(), 2 * (keyframes - 1));
+    if (m.ns == "keyframes") {
+      EXPECT_EQ(m.points.size(), keyframes);
+    }
+    if (m.ns == "odometry_edges") {
+      EXPECT_EQ(m.points.size(), 2 * (keyframes - 1));
+    }
   }
 }
 
