@@ -96,22 +96,6 @@ void upperTriangle(const Matrix6& m, double* upper) {
   }
 }
 
-Matrix6 angleToQuaternionUnits(const Matrix6& information) {
-  Matrix6 m = information;
-  m.block<3, 3>(3, 3) *= 4.0;
-  m.block<3, 3>(0, 3) *= 2.0;
-  m.block<3, 3>(3, 0) *= 2.0;
-  return m;
-}
-
-Matrix6 quaternionToAngleUnits(const Matrix6& information) {
-  Matrix6 m = information;
-  m.block<3, 3>(3, 3) *= 0.25;
-  m.block<3, 3>(0, 3) *= 0.5;
-  m.block<3, 3>(3, 0) *= 0.5;
-  return m;
-}
-
 Matrix6 liftPlanarInformation(const Matrix3& planar) {
   // Indices of x, y, theta (= yaw) in the 6x6 order x y z roll pitch yaw.
   constexpr int kIndex[3] = {0, 1, 5};

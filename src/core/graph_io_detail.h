@@ -92,11 +92,6 @@ void writeToro(const PoseGraph& graph, std::ostream& out, ToroInformationOrder o
 Matrix6 symmetricFromUpperTriangle(const double* upper);
 void upperTriangle(const Matrix6& m, double* upper);
 
-// Rotation block x4, translation-rotation cross blocks x2: per-rad^2 units -> q-vector units.
-Matrix6 angleToQuaternionUnits(const Matrix6& information);
-// The inverse (exact: powers of two).
-Matrix6 quaternionToAngleUnits(const Matrix6& information);
-
 // Planar information in the order (x, y, theta), angle units -> lifted internal 6x6, and back.
 Matrix6 liftPlanarInformation(const Matrix3& planar);
 Matrix3 planarInformation(const Matrix6& information);

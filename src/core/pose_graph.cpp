@@ -50,6 +50,22 @@ bool repairInformation(Matrix6& information) {
   return true;
 }
 
+Matrix6 angleToQuaternionUnits(const Matrix6& information) {
+  Matrix6 m = information;
+  m.block<3, 3>(3, 3) *= 4.0;
+  m.block<3, 3>(0, 3) *= 2.0;
+  m.block<3, 3>(3, 0) *= 2.0;
+  return m;
+}
+
+Matrix6 quaternionToAngleUnits(const Matrix6& information) {
+  Matrix6 m = information;
+  m.block<3, 3>(3, 3) *= 0.25;
+  m.block<3, 3>(0, 3) *= 0.5;
+  m.block<3, 3>(3, 0) *= 0.5;
+  return m;
+}
+
 void PoseGraph::addNode(NodeId id, const Pose3& pose) {
   if (index_.count(id)) {
     throw GraphError("node " + std::to_string(id) + " already exists");

@@ -4,13 +4,12 @@
 
 #include <Eigen/Cholesky>
 
+#include "toro_ros/core/pose_graph.h"
+
 namespace toro_ros {
 
 toro::Matrix6 covarianceFromInformation(const toro::Matrix6& information) {
-  // Information per unit of the rotation vector: the q-vector is half the rotation vector.
-  toro::Matrix6 j = toro::Matrix6::Identity();
-  j.diagonal().tail<3>().setConstant(0.5);
-  const toro::Matrix6 per_angle = j.transpose() * information * j;
+  const toro::Matrix6 per_angle = toro::quaternionToAngleUnits(information);
   const Eigen::LLT<toro::Matrix6> llt(0.5 * (per_angle + per_angle.transpose()));
   if (!information.allFinite() || llt.info() != Eigen::Success)
     throw std::invalid_argument("information matrix is not symmetric positive definite");

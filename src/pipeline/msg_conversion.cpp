@@ -6,6 +6,8 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
+#include "toro_ros/core/pose_graph.h"
+
 namespace toro_ros {
 
 namespace {
@@ -98,12 +100,8 @@ InformationResult informationFromCovariance(const toro::Matrix6& cov, const Defa
   Eigen::SelfAdjointEigenSolver<toro::Matrix6> eig(sym, Eigen::EigenvaluesOnly);
   if (llt.info() != Eigen::Success || eig.eigenvalues().minCoeff() <= 1e-12 * scale)
     return fallback("covariance is not positive definite");
-  toro::Matrix6 info = llt.solve(toro::Matrix6::Identity());
-  info = 0.5 * (info + info.transpose());
-  info.block<3, 3>(3, 3) *= 4.0;
-  info.block<3, 3>(0, 3) *= 2.0;
-  info.block<3, 3>(3, 0) *= 2.0;
-  out.information = info;
+  const toro::Matrix6 per_angle = llt.solve(toro::Matrix6::Identity());
+  out.information = toro::angleToQuaternionUnits(0.5 * (per_angle + per_angle.transpose()));
   return out;
 }
 

@@ -84,6 +84,13 @@ class PoseGraph {
   GraphDimension dimension_ = GraphDimension::k3D;
 };
 
+// Conversions of a translation-first 6x6 information matrix between angle units (per rad^2 on the
+// rotation vector or Euler angles: TORO files, geometry_msgs covariances) and the core's units
+// (per unit^2 on the quaternion's vector part, about half the angle): rotation block x4, cross
+// blocks x2, and back.  Exact powers of two, so a round trip is exact.
+Matrix6 angleToQuaternionUnits(const Matrix6& information);
+Matrix6 quaternionToAngleUnits(const Matrix6& information);
+
 // Reason string for an information matrix that is unusable (non-finite, asymmetric beyond a
 // relative tolerance, or not positive definite); empty if fine.
 std::string checkInformation(const Matrix6& information);
