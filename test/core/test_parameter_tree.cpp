@@ -86,7 +86,9 @@ TEST(ParameterTree, TopologicalOrderPutsParentsFirst) {
   std::vector<int> position(g.numNodes());
   for (std::size_t i = 0; i < order.size(); ++i) position[order[i]] = static_cast<int>(i);
   for (std::size_t v = 0; v < g.numNodes(); ++v) {
-    if (!t.isRoot(v)) EXPECT_LT(position[t.parent(v)], position[v]);
+    if (!t.isRoot(v)) {
+      EXPECT_LT(position[t.parent(v)], position[v]);
+    }
   }
   EXPECT_EQ(parentId(g, t, 9), 3);  // smallest neighbour of 9 is 3, not 7
 }
