@@ -9,6 +9,7 @@
 
 #include "toro_ros/node/names.h"
 #include "toro_ros/pipeline/msg_conversion.h"
+#include "toro_ros/pipeline/persistence.h"
 #include "toro_ros/pipeline/visualization.h"
 
 namespace toro_ros {
@@ -46,6 +47,10 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
       pipeline_(std::make_unique<Pipeline>(
           options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); })),
       diagnostics_(nh, private_nh) {
+  // Before the worker starts (it owns the pipeline from then on); throws, stopping the node, if
+  // load_path exists but cannot be loaded, rather than start empty and autosave over it.
+  const std::string resumed = loadOnStart(*pipeline_, options_.load_path);
+  if (!resumed.empty()) ROS_INFO_STREAM("map corrector: " << resumed);
   snapshot_ = pipeline_->makeSnapshot();
   path_pub_ = private_nh_.advertise<nav_msgs::Path>(names::kPathTopic, 1, true);
   markers_pub_ = private_nh_.advertise<visualization_msgs::MarkerArray>(names::kMarkersTopic, 1, true);
@@ -100,6 +105,11 @@ MapCorrectorNode::~MapCorrectorNode() {
   stop_ = true;
   queue_.stop();
   if (worker_.joinable()) worker_.join();
+  // The worker is gone: this thread may touch the pipeline.  Input still queued is not applied
+  // (a shutdown should not wait for a backlog); what was applied is saved.
+  const std::string error = pipeline_->autosave();
+  if (!options_.pipeline.persistence.autosave_path.empty() && error.empty())
+    ROS_INFO_STREAM("map corrector: graph saved to " << options_.pipeline.persistence.autosave_path);
 }
 
 void MapCorrectorNode::subscribeInputs() {
@@ -115,18 +125,9 @@ void MapCorrectorNode::subscribeInputs() {
 
 template <class M>
 void MapCorrectorNode::enqueue(const boost::shared_ptr<const M>& msg, const char* what) {
-  checkFrame(*msg);
   // Never blocks: a full queue drops the message and counts it (diagnostics, ~get_status).
   if (!queue_.push(Item(PipelineMessage(msg))))
     ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, %s message dropped", what);
-}
-
-void MapCorrectorNode::checkFrame(const nav_msgs::Odometry& msg) {
-  if (!msg.header.frame_id.empty() && msg.header.frame_id != options_.odom_frame &&
-      !warned_frame_.exchange(true))
-    ROS_WARN_STREAM("map corrector: odometry in frame '"
-                    << msg.header.frame_id << "' but odom_frame is '" << options_.odom_frame << "'; map->"
-                    << options_.odom_frame << " is published regardless");
 }
 
 void MapCorrectorNode::process(Item& item) {
@@ -202,6 +203,8 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   const std::size_t queued = queue_.size();
   if (queued * 2 > static_cast<std::size_t>(options_.queue_size))
     status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "input queue more than half full");
+  else if (s->counters.autosave_failures > 0)
+    status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "autosave failed, see the log");
   else if (!unknown_parameters_.empty())
     status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "unknown parameters (typos?), see the log");
   else if (s->keyframes.empty())
@@ -220,6 +223,8 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   status.add("loop closures pending", s->pending_loop_closures);
   // The same counts as ~get_status's refused_reasons/refused_counts, one key per reason.
   for (const auto& [reason, count] : s->counters.refused_by_reason) status.add("refused: " + reason, count);
+  status.add("autosaves", s->counters.autosaves);
+  status.add("autosave failures", s->counters.autosave_failures);
   status.add("last chi2", s->chi2);
   status.add("last optimization sec", s->last_optimization_sec);
 }

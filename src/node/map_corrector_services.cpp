@@ -109,6 +109,8 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
   res.last_optimization_sec = r->last_optimization_sec;
   res.paused = r->paused;
   res.loop_closures_rejected = r->counters.loop_closures_rejected;
+  res.autosaves = r->counters.autosaves;
+  res.autosave_failures = r->counters.autosave_failures;
   for (const RejectedLoopClosure& x : r->rejected)
     res.rejected_loop_closures.push_back(std::to_string(x.constraint.from) + " -> " +
                                          std::to_string(x.constraint.to) + " chi2 " + std::to_string(x.chi2));

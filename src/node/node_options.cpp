@@ -108,6 +108,16 @@ void readPipeline(ParamReader& r, PipelineOptions& p, OptionsReport* report) {
   r.read("odometry_history_sec", p.odometry_history_sec);
   r.read("loop_closure_gate_confidence", p.loop_closure_gate_confidence);
   r.read("loop_closure_gate_variance_factor", p.loop_closure_gate_variance_factor);
+  r.read("autosave_path", p.persistence.autosave_path);
+  r.read("autosave_period_sec", p.persistence.autosave_period_sec);
+  std::string link = toString(p.persistence.resume_link);
+  r.read("resume_link", link);
+  if (auto l = resumeLinkFromString(link))
+    p.persistence.resume_link = *l;
+  else
+    report->errors.push_back("resume_link: expected continue or last_pose, got '" + link + "'");
+  r.read("resume_link_translation_stddev_m", p.persistence.resume_link_stddev.translation_m);
+  r.read("resume_link_rotation_stddev_rad", p.persistence.resume_link_stddev.rotation_rad);
 }
 
 }  // namespace
@@ -140,12 +150,14 @@ NodeOptions loadNodeOptions(const XmlRpc::XmlRpcValue& params, OptionsReport* re
   r.read("diagnostics_rate_hz", o.diagnostics_rate_hz);
   r.read("queue_size", o.queue_size);
   r.read("service_timeout_sec", o.service_timeout_sec);
+  r.read("load_path", o.load_path);
   readPipeline(r, o.pipeline, report);
   r.read("marker_node_scale_m", o.markers.node_scale_m);
   r.read("marker_edge_width_m", o.markers.edge_width_m);
   r.read("marker_loop_closure_chi2_red", o.markers.loop_closure_chi2_red);
   r.read("marker_draw_odometry_edges", o.markers.draw_odometry_edges);
   r.finish();
+  o.pipeline.odom_frame = o.odom_frame;  // the pipeline refuses odometry in another frame
   if (report->errors.empty()) {
     const std::string invalid = o.validate();
     if (!invalid.empty()) report->errors.push_back(invalid);

@@ -1,6 +1,7 @@
 #include "toro_ros/offline/offline_runner.h"
 
 #include <chrono>
+#include <cmath>
 #include <iostream>
 #include <sstream>
 #include <stdexcept>
@@ -14,6 +15,7 @@
 #include "toro_ros/offline/flat_yaml.h"
 #include "toro_ros/offline/progress_bar.h"
 #include "toro_ros/pipeline/input_table.h"
+#include "toro_ros/pipeline/persistence.h"
 
 namespace toro_ros {
 namespace offline {
@@ -32,6 +34,8 @@ std::string OfflineOptions::validate() const {
   if (output_dir.empty()) return "output directory: missing";
   if (final_iterations < 0) return "final_iterations must be >= 0";
   if (topic_namespace.empty() || topic_namespace[0] != '/') return "namespace must start with '/'";
+  if (!(std::isfinite(start_sec) && start_sec >= 0)) return "start must be >= 0 s";
+  if (!(std::isfinite(duration_sec) && duration_sec >= 0)) return "duration must be >= 0 s (0: to the end)";
   return "";
 }
 
@@ -74,6 +78,8 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
     if (warnings_.size() < kMaxPrintedWarnings) std::cerr << "\nwarning: " << w << '\n';
     warnings_.push_back(w);
   });
+  const std::string resumed = loadOnStart(*pipeline_, node_options_.load_path);
+  if (!resumed.empty()) std::cerr << resumed << '\n';
 }
 
 void OfflineRunner::drainSchedule(double stamp_sec, OfflineRun* run) {
@@ -122,11 +128,14 @@ OfflineRun OfflineRunner::run() {
   const std::map<std::string, BagHandler> handlers = makeBagHandlers(options_.topic_namespace);
   std::vector<std::string> topics;
   for (const auto& entry : handlers) topics.push_back(entry.first);
-  rosbag::View view(bag, rosbag::TopicQuery(topics));
-  if (view.size() == 0)
+  rosbag::View whole(bag, rosbag::TopicQuery(topics));
+  if (whole.size() == 0)
     throw std::runtime_error(options_.bag_path + ": no message on " + topics.front() + " or " +
                              topics.back());
-  const ros::Time begin = view.getBeginTime(), end = view.getEndTime();
+  const ros::Time bag_begin = whole.getBeginTime();
+  const ros::Time begin = bag_begin + ros::Duration(options_.start_sec);
+  const ros::Time end = options_.duration_sec > 0 ? begin + ros::Duration(options_.duration_sec) : whole.getEndTime();
+  rosbag::View view(bag, rosbag::TopicQuery(topics), begin, end);
   run.bag_duration_sec = (end - begin).toSec();
   ProgressBar bar(std::cerr, options_.progress);
   for (const rosbag::MessageInstance& m : view) {

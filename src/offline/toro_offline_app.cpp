@@ -23,6 +23,8 @@ const std::vector<ArgSpec> kSpecs = {
     {"truth",
      "truth file for scoring (<stem>.truth.g2o from graph_to_bag). Default: <bag stem>.truth.g2o if "
      "it exists"},
+    {"start", "start this many seconds into the bag, as rosbag play -s. Default 0"},
+    {"duration", "read only this many seconds of the bag, as rosbag play -u (0: to the end). Default 0"},
     {"no-curve", "do not record chi2 after each final pass (saves one extra run of the final passes)", false},
     {"quiet", "no progress bar (there is none either when stderr is not a terminal)", false},
 };
@@ -35,6 +37,8 @@ OfflineOptions optionsFromArgs(const ParsedArgs& a) {
   o.topic_namespace = a.text("namespace", o.topic_namespace);
   o.final_iterations = a.integer("final-iterations", o.final_iterations);
   o.iteration_curve = !a.has("no-curve");
+  o.start_sec = a.number("start", o.start_sec);
+  o.duration_sec = a.number("duration", o.duration_sec);
   // A progress bar only for a terminal: in a log file its redraws would be one long line.
   o.progress = !a.has("quiet") && isatty(STDERR_FILENO);
   const std::string beside = bagStem(o.bag_path) + ".truth.g2o";
@@ -55,6 +59,10 @@ int runToroOffline(int argc, char** argv) {
     const OfflineOptions options = optionsFromArgs(args);
     OfflineRunner runner(options);
     const OfflineRun run = runner.run();
+    // As the node does on shutdown: the config's autosave_path (if any) gets the final graph, so
+    // a later run (node or this tool) can resume it with load_path.
+    const std::string autosave_error = runner.pipeline().autosave();
+    if (!autosave_error.empty()) std::cerr << "toro_offline: autosave: " << autosave_error << "\n";
     const OfflineSummary summary = summarize(runner, run, options);
     writeOutputs(runner, summary, options);
     std::cout << describeSummary(summary) << "wrote " << options.output_dir

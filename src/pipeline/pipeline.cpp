@@ -37,6 +37,11 @@ std::string describe(const LoopClosure& msg) {
   return "loop closure " + stampString(msg.stamp_from) + " -> " + stampString(msg.stamp_to);
 }
 
+// tf2 ignores a leading slash ("/odom" is "odom").
+std::string withoutLeadingSlash(const std::string& frame) {
+  return !frame.empty() && frame[0] == '/' ? frame.substr(1) : frame;
+}
+
 }  // namespace
 
 std::string OptimizationOptions::validate() const {
@@ -61,7 +66,7 @@ std::string PipelineOptions::validate() const {
     return "loop_closure_gate_confidence must be in [0, 1) (0 disables the gate)";
   if (!(std::isfinite(loop_closure_gate_variance_factor) && loop_closure_gate_variance_factor > 0))
     return "loop_closure_gate_variance_factor must be > 0";
-  return "";
+  return persistence.validate();
 }
 
 Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn)
@@ -83,8 +88,14 @@ Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn)
 
 void Pipeline::refuse(const std::string& category, const std::string& detail) {
   ++revision_;
-  ++counters_.refused_by_reason[category];
-  if (warn_) warn_(category + ": " + detail);
+  const std::uint64_t n = ++counters_.refused_by_reason[category];
+  // A misconfigured sender repeats the same refusal at its message rate: log occurrences 1, 2, 4,
+  // 8, ... of each category (the counters have every one), so the log stays readable and bounded
+  // without reading any clock.
+  if (!warn_ || (n & (n - 1)) != 0) return;
+  warn_(n == 1 ? category + ": " + detail
+               : category + ": " + detail + " (occurrence " + std::to_string(n) +
+                     " of this kind; only powers of two are logged)");
 }
 
 void Pipeline::refuseLoopClosure(const MatchResult& match, const LoopClosure& msg) {
@@ -101,6 +112,15 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
     refuse("odometry: invalid message", "odometry at " + stampString(stamp) + " refused: " + invalid);
     return;
   }
+  if (!options_.odom_frame.empty() && !msg.header.frame_id.empty() &&
+      withoutLeadingSlash(msg.header.frame_id) != withoutLeadingSlash(options_.odom_frame)) {
+    ++counters_.odometry_refused;
+    refuse("odometry: wrong frame", "odometry at " + stampString(stamp) + " is in frame '" +
+                                        msg.header.frame_id + "', odom_frame is '" + options_.odom_frame + "'");
+    return;
+  }
+  const OdometrySample sample{stamp, poseFromMsg(msg.pose.pose), covarianceMatrix(msg.pose.covariance)};
+  if (resume_after_ && !resumeWith(sample)) return;
   if (!newest_odometry_.isZero() && stamp <= newest_odometry_) {
     const double back = (newest_odometry_ - stamp).toSec();
     if (back > options_.time_jump_reset_sec) {
@@ -116,15 +136,18 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
     }
   }
   newest_odometry_ = stamp;
-  last_odometry_ = OdometrySample{stamp, poseFromMsg(msg.pose.pose), covarianceMatrix(msg.pose.covariance)};
+  last_odometry_ = sample;
   odometry_history_.add(stamp, last_odometry_->odom_T_base);
   if (keyframer_.isKeyframe(*last_odometry_) ||
       (options_.matcher.create_keyframes && matcher_.wantsKeyframeAt(stamp, keyframes_)))
     addKeyframe(*last_odometry_);
   releasePending();
+  autosaveIfDue(stamp);
 }
 
 void Pipeline::addKeyframe(const OdometrySample& sample) {
+  // After a load the reference keyframe's covariance is unknown (NaN): defaults, not a refusal.
+  const bool reference_known = !keyframer_.last() || keyframer_.last()->covariance.allFinite();
   const std::optional<OdometryStep> step = keyframer_.accept(sample);
   const toro::NodeId id = next_id_++;
   // A new keyframe continues from the corrected previous one, so the odometry constraint starts
@@ -138,7 +161,7 @@ void Pipeline::addKeyframe(const OdometrySample& sample) {
   if (last_full_stamp_.isZero()) last_full_stamp_ = sample.stamp;
   ++keyframes_since_full_;
   if (!step) return;
-  if (step->information.used_default &&
+  if (step->information.used_default && reference_known &&
       options_.keyframer.covariance_mode != OdometryCovarianceMode::kDefault)
     ++counters_.refused_by_reason["odometry: covariance unusable, default used"];
   toro::Constraint c{previous, id, step->previous_T_current, step->information.information};
@@ -161,6 +184,14 @@ void Pipeline::keyframeForStamps(const LoopClosure& msg) {
 
 void Pipeline::handleLoopClosure(const LoopClosure& msg) {
   ++counters_.loop_closures_received;
+  if (!loaded_until_.isZero() && !msg.header.stamp.isZero() && msg.header.stamp <= loaded_until_) {
+    MatchResult r;
+    r.reason = refusal::kBeforeResume;
+    r.detail = "sent at " + stampString(msg.header.stamp) + ", not after the newest loaded keyframe " +
+               stampString(loaded_until_) + " (it is in the map already)";
+    refuseLoopClosure(r, msg);
+    return;
+  }
   keyframeForStamps(msg);
   const MatchResult r = matcher_.submit(msg, keyframes_, newest_odometry_);
   if (r.state == MatchResult::State::kMatched)
@@ -364,6 +395,8 @@ void Pipeline::clearGraph() {
   last_full_stamp_ = ros::Time();
   full_passes_left_ = 0;
   last_chi2_ = kNaN;
+  resume_after_.reset();
+  loaded_until_ = ros::Time();
   ++counters_.resets;
   ++epoch_;
   ++revision_;

@@ -1,10 +1,14 @@
 // Pipeline::saveGraph / loadGraph: the graph file through the core's graph_io, the keyframe stamps
-// and loop-closure flags through the sidecar (persistence.h).
+// and loop-closure flags through the sidecar (persistence.h); autosave and the resume of a loaded
+// map by new odometry.
+#include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <stdexcept>
 
 #include "toro_ros/core/graph_io.h"
+#include "toro_ros/pipeline/msg_conversion.h"
 #include "toro_ros/pipeline/persistence.h"
 #include "toro_ros/pipeline/pipeline.h"
 
@@ -44,6 +48,21 @@ std::string checkSidecar(const Sidecar& s, const toro::PoseGraph& graph) {
 }
 
 }  // namespace
+
+std::optional<ResumeLink> resumeLinkFromString(const std::string& s) {
+  if (s == "continue") return ResumeLink::kContinue;
+  if (s == "last_pose") return ResumeLink::kLastPose;
+  return std::nullopt;
+}
+
+std::string toString(ResumeLink link) { return link == ResumeLink::kContinue ? "continue" : "last_pose"; }
+
+std::string PersistenceOptions::validate() const {
+  if (!(std::isfinite(autosave_period_sec) && autosave_period_sec > 0))
+    return "autosave_period_sec must be > 0";
+  const std::string e = resume_link_stddev.validate();
+  return e.empty() ? "" : "resume_link_stddev: " + e;
+}
 
 std::string Pipeline::saveGraph(const std::string& path) const {
   if (optimizer_.graph().empty()) return "nothing to save: the graph is empty";
@@ -91,10 +110,76 @@ std::string Pipeline::loadGraph(const std::string& path) {
   for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;
   rejected_ = sidecar.rejected;
   const KeyframeRecord& newest = keyframes_.newest();
-  keyframer_.setLast(OdometrySample{newest.stamp, newest.odom_T_base, toro::Matrix6::Zero()});
+  // The sidecar does not keep odometry covariances: NaN marks the reference's as unknown, so the
+  // first step after the load takes the default information (kDifference would otherwise use the
+  // whole covariance accumulated since the odometry started).
+  keyframer_.setLast(OdometrySample{newest.stamp, newest.odom_T_base,
+                                    toro::Matrix6::Constant(std::numeric_limits<double>::quiet_NaN())});
   newest_odometry_ = newest.stamp;
   last_full_stamp_ = newest.stamp;
   next_id_ = newest.id + 1;
+  resume_after_ = loaded_until_ = newest.stamp;
+  // What was just loaded is on disk already; the next autosave waits for a change.
+  autosaved_revision_ = revision_;
+  last_autosave_stamp_ = newest.stamp;
+  return "";
+}
+
+bool Pipeline::resumeWith(const OdometrySample& sample) {
+  if (sample.stamp <= *resume_after_) {
+    ++counters_.odometry_refused;
+    refuse(std::string("odometry: ") + refusal::kBeforeResume,
+           "odometry at " + stampString(sample.stamp) + " is not after the newest loaded keyframe " +
+               stampString(*resume_after_) + " (it is in the map already)");
+    return false;
+  }
+  resume_after_.reset();
+  if (options_.persistence.resume_link == ResumeLink::kContinue) return true;  // keyframer goes on
+  // kLastPose: the new odometry frame starts where the saved run ended.  The sample becomes a
+  // keyframe at the newest saved pose, and later keyframes step from it in the new frame.
+  const toro::NodeId previous = keyframes_.newest().id, id = next_id_++;
+  optimizer_.addNode(id, optimizer_.graph().pose(previous));
+  keyframes_.append(KeyframeRecord{id, sample.stamp, sample.odom_T_base});
+  optimizer_.addConstraint(toro::Constraint{previous, id, toro::Pose3(),
+                                            defaultInformation(options_.persistence.resume_link_stddev)});
+  is_loop_closure_.push_back(false);
+  keyframer_.setLast(sample);
+  ++keyframes_since_full_;
+  ++revision_;
+  return true;
+}
+
+void Pipeline::autosaveIfDue(const ros::Time& stamp) {
+  if (options_.persistence.autosave_path.empty()) return;
+  if (last_autosave_stamp_.isZero() || stamp < last_autosave_stamp_) last_autosave_stamp_ = stamp;
+  if ((stamp - last_autosave_stamp_).toSec() < options_.persistence.autosave_period_sec) return;
+  last_autosave_stamp_ = stamp;
+  autosave();
+}
+
+std::string loadOnStart(Pipeline& pipeline, const std::string& path) {
+  if (path.empty()) return "";
+  if (!fileExists(path)) return "load_path " + path + " does not exist yet: starting a new map";
+  const std::string error = pipeline.loadGraph(path);
+  if (!error.empty()) throw std::runtime_error("load_path: " + error);
+  const KeyframeIndex& k = pipeline.keyframes();
+  return "resumed " + path + ": " + std::to_string(k.size()) + " keyframes, " +
+         std::to_string(pipeline.graph().numConstraints()) + " constraints, newest keyframe at " +
+         stampString(k.newest().stamp) + "; odometry joins it by resume_link " +
+         toString(pipeline.options().persistence.resume_link);
+}
+
+std::string Pipeline::autosave() {
+  const std::string& path = options_.persistence.autosave_path;
+  if (path.empty() || revision_ == autosaved_revision_ || optimizer_.graph().empty()) return "";
+  const std::string error = saveGraph(path);
+  if (!error.empty()) {
+    ++counters_.autosave_failures;
+    if (warn_) warn_("autosave failed (will retry after the next period): " + error);
+    return error;
+  }
+  ++counters_.autosaves;
+  autosaved_revision_ = revision_;
   return "";
 }
 

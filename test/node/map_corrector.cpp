@@ -349,6 +349,8 @@ TEST(MapCorrector, UnknownStampRefusedFutureStampAppliedWhenOdometryArrives) {
   const GetStatus::Response before = client->status();
   LoopClosure unknown = toro_ros::testing::trueLoopClosure(scenario, 0, 10);
   unknown.stamp_from = ros::Time(20.0);
+  // Found now, after the graph loaded above (one sent before it would be refused as already in it).
+  unknown.header.stamp = scenario.odometry.back().header.stamp + ros::Duration(0.5);
   client->publishLoopClosure(unknown);
   ASSERT_TRUE(Client::waitFor(
       [&] { return client->status().loop_closures_refused == before.loop_closures_refused + 1; }));

@@ -6,41 +6,12 @@
 #include <gtest/gtest.h>
 
 #include "toro_ros/node/node_options.h"
+#include "toro_ros/offline/flat_yaml.h"
 
 using namespace toro_ros;
+using toro_ros::offline::readFlatYaml;
 
 namespace {
-
-// The config is flat "key: value" lines (comments start with '#'); enough of YAML for it.
-XmlRpc::XmlRpcValue readFlatYaml(const std::string& path) {
-  std::ifstream in(path);
-  EXPECT_TRUE(in.good()) << path;
-  XmlRpc::XmlRpcValue out;
-  out.begin();  // make it a struct even if empty
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    const auto colon = line.find(':');
-    EXPECT_NE(colon, std::string::npos) << line;
-    const std::string key = line.substr(0, colon);
-    std::string value = line.substr(colon + 1);
-    value.erase(0, value.find_first_not_of(' '));
-    char* end = nullptr;
-    const long i = std::strtol(value.c_str(), &end, 10);
-    if (*end == '\0') {
-      out[key] = static_cast<int>(i);
-      continue;
-    }
-    const double d = std::strtod(value.c_str(), &end);
-    if (*end == '\0')
-      out[key] = d;
-    else if (value == "true" || value == "false")
-      out[key] = value == "true";
-    else
-      out[key] = value;
-  }
-  return out;
-}
 
 const std::string kConfig = std::string(TORO_SOURCE_DIR) + "/config/map_corrector.yaml";
 

@@ -39,7 +39,8 @@ class MapCorrectorNode {
   // Reads ~ parameters (throws std::invalid_argument naming the bad ones), advertises, subscribes
   // and starts the worker.
   MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_nh);
-  ~MapCorrectorNode();  // stops the worker (flag, notify, join)
+  // Stops the worker (flag, notify, join), then autosaves (persistence.autosave_path) what it applied.
+  ~MapCorrectorNode();
 
   MapCorrectorNode(const MapCorrectorNode&) = delete;
   MapCorrectorNode& operator=(const MapCorrectorNode&) = delete;
@@ -53,9 +54,6 @@ class MapCorrectorNode {
   void subscribeInputs();
   template <class M>
   void enqueue(const boost::shared_ptr<const M>& msg, const char* what);
-  // Transport-level checks (content is validated once, in the pipeline).
-  void checkFrame(const nav_msgs::Odometry& msg);
-  void checkFrame(const LoopClosure&) {}
   void workerLoop();
   void process(Item& item);
   void publishSnapshot();
@@ -82,7 +80,6 @@ class MapCorrectorNode {
   InputQueue<Item> queue_;
   std::unique_ptr<Pipeline> pipeline_;  // touched only by the worker thread (after construction)
   std::atomic<bool> stop_{false};
-  std::atomic<bool> warned_frame_{false};
 
   mutable std::mutex snapshot_mutex_;  // guards snapshot_ (the pointer, not the pointee)
   std::shared_ptr<const Snapshot> snapshot_;

@@ -22,6 +22,10 @@ struct NodeOptions {
   double diagnostics_rate_hz = 1.0;
   int queue_size = 2000;              // input queue bound (messages beyond are dropped, counted)
   double service_timeout_sec = 60.0;  // a service waits this long for the worker
+  // A graph saved by ~save_graph or autosave to resume on start; empty: start a new map.  A missing
+  // file is a first run (logged); an unreadable or malformed one stops the node (it might be the
+  // autosave of the map the user wants, which must not be overwritten).
+  std::string load_path;
   PipelineOptions pipeline;
   MarkerOptions markers;
   std::string validate() const;

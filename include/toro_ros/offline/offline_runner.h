@@ -27,6 +27,10 @@ struct OfflineOptions {
   bool iteration_curve = true;        // chi2 after each final pass (runs the final passes on a copy too)
   bool progress = true;               // progress bar on stderr
   std::string truth_path;             // optional "<stem>.truth.g2o" (+ the odometry sidecar) for scoring
+  // Part of the bag to read, in seconds from its first message on the input topics, as `rosbag
+  // play -s START -u DURATION` would play it (duration 0: to the end).
+  double start_sec = 0.0;
+  double duration_sec = 0.0;
   std::string validate() const;
 };
 
@@ -60,7 +64,8 @@ std::string resolveName(const std::string& ns, const std::string& name);
 
 class OfflineRunner {
  public:
-  // Throws std::invalid_argument naming the problem (options, parameter file keys or values).
+  // Throws std::invalid_argument naming the problem (options, parameter file keys or values), and
+  // std::runtime_error if the parameter file's load_path exists but cannot be loaded.
   explicit OfflineRunner(const OfflineOptions& options);
   // Reads the whole bag.  Throws std::runtime_error naming the bag (and topic/stamp) on errors.
   OfflineRun run();

@@ -17,6 +17,8 @@
 
 namespace toro_ros {
 
+class Pipeline;
+
 struct Sidecar {
   std::vector<KeyframeRecord> keyframes;
   std::vector<std::size_t> loop_closures;  // constraint indices
@@ -36,5 +38,11 @@ std::string temporaryPath(const std::string& path);
 // directory, so that a crash leaves either the old or the new file, never a partial one.
 // Throws std::runtime_error naming the path.
 void commitFile(const std::string& temporary, const std::string& path);
+
+// load_path on start (node and offline runner alike).  Returns a line for the log: "" for an empty
+// path, "starting a new map" when the file does not exist yet (the first run of an autosave that
+// is also the load_path), else what was resumed.  Throws std::runtime_error when the file exists
+// but cannot be loaded: the owner must stop rather than start empty and autosave over it.
+std::string loadOnStart(Pipeline& pipeline, const std::string& path);
 
 }  // namespace toro_ros

@@ -35,7 +35,34 @@ struct OptimizationOptions {
   std::string validate() const;
 };
 
+// How the odometry of a run that resumed a saved map (loadGraph) joins the saved keyframes.
+enum class ResumeLink {
+  // The odometry frame is the saved run's (only the node restarted; the odometry source ran on):
+  // the first new keyframe is linked to the newest saved one by the odometry between them.
+  kContinue,
+  // The odometry restarted from its own origin at the pose where the saved run ended (the whole
+  // robot restarted where it stopped): the first new odometry message becomes a keyframe linked to
+  // the newest saved one by the identity, with resume_link_stddev.
+  kLastPose,
+};
+// "continue" | "last_pose"; nullopt for anything else.
+std::optional<ResumeLink> resumeLinkFromString(const std::string& s);
+std::string toString(ResumeLink link);
+
+struct PersistenceOptions {
+  // Where the graph (+ "<path>.stamps") is saved atomically every autosave_period_sec of message
+  // time when it changed, and when the owner calls autosave() (the node: on shutdown).  Empty: off.
+  std::string autosave_path;
+  double autosave_period_sec = 30.0;  // > 0
+  ResumeLink resume_link = ResumeLink::kContinue;
+  DefaultStddev resume_link_stddev{0.5, 0.2};  // the kLastPose link: where the robot was put down
+  std::string validate() const;
+};
+
 struct PipelineOptions {
+  // Odometry whose header.frame_id is set and differs is refused (its poses are in another frame,
+  // so map -> odom_frame would be wrong).  Empty: any frame.  The node sets it to its odom_frame.
+  std::string odom_frame;
   KeyframerOptions keyframer;
   LoopClosureMatchOptions matcher;
   DefaultStddev loop_closure_default_stddev{0.1, 0.05};
@@ -57,6 +84,7 @@ struct PipelineOptions {
   // the quantile times this.  1 trusts the declared covariances; < 1 for senders known to declare
   // them too large (e.g. parking-garage.g2o, whose residuals are ~1e-4 of its declared ones).
   double loop_closure_gate_variance_factor = 1.0;
+  PersistenceOptions persistence;
   std::string validate() const;
 };
 
@@ -108,9 +136,17 @@ class Pipeline {
   // Forgets the graph, keyframes and pending loop closures (counters survive; resets counted).
   void reset(const std::string& why);
   // Save/load the graph (format by extension) and a "<path>.stamps" sidecar (see persistence.h).
-  // Empty string on success, else the error.  A failed load leaves the pipeline untouched.
+  // Empty string on success, else the error.  A failed load leaves the pipeline untouched.  After
+  // a load the map is resumed: odometry stamped at or before the newest loaded keyframe is refused
+  // (it is already in the map; no time-jump reset), and the next newer odometry is joined to the
+  // loaded keyframes by options().persistence.resume_link.  Loop closures sent (header stamp) at
+  // or before that keyframe are refused too, so replaying a bag from its start into the resumed
+  // map does not add its loop closures twice.
   std::string saveGraph(const std::string& path) const;
   std::string loadGraph(const std::string& path);
+  // Saves to persistence.autosave_path now if it is set and the graph changed since the last
+  // autosave (the node calls it on shutdown).  Empty string when saved or nothing to do.
+  std::string autosave();
 
   // A new immutable snapshot of the current state (O(keyframes + constraints)).
   std::shared_ptr<const Snapshot> makeSnapshot();
@@ -128,6 +164,9 @@ class Pipeline {
 
  private:
   void addKeyframe(const OdometrySample& sample);
+  // The first odometry after a load (pipeline_persistence.cpp): false if `sample` is refused.
+  bool resumeWith(const OdometrySample& sample);
+  void autosaveIfDue(const ros::Time& stamp);
   void keyframeForStamps(const LoopClosure& msg);
   void applyLoopClosure(const LoopClosure& msg, const MatchResult& match);
   // keyframe_T_stamp from the odometry history (identity when the stamp is not covered).
@@ -180,6 +219,11 @@ class Pipeline {
   std::size_t gate_constraint_ = 0;  // the candidate's constraint index
   ros::Time gate_stamp_;              // its message's header stamp
   std::vector<RejectedLoopClosure> rejected_;
+  // Persistence: set by loadGraph until newer odometry arrives; the last autosave.
+  std::optional<ros::Time> resume_after_;
+  ros::Time loaded_until_;  // newest keyframe stamp of the last load (input up to it is refused)
+  ros::Time last_autosave_stamp_;
+  std::uint64_t autosaved_revision_ = 0;
 };
 
 }  // namespace toro_ros

@@ -24,6 +24,8 @@ struct PipelineCounters {
   std::uint64_t time_jump_resets = 0;
   std::uint64_t resets = 0;               // all resets (time jumps, service, load)
   std::uint64_t optimization_passes = 0;  // full and affected passes run
+  std::uint64_t autosaves = 0;            // successful autosaves
+  std::uint64_t autosave_failures = 0;    // failed ones (each also logged with the reason)
   // Refusals by category, "odometry: ..." and "loop closure: ..." (see loop_closure_matcher.h).
   std::map<std::string, std::uint64_t> refused_by_reason;
 };
