@@ -43,19 +43,17 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
     : nh_(nh),
       private_nh_(private_nh),
       options_(loadOptions(private_nh, &unknown_parameters_)),
-      queue_(static_cast<std::size_t>(options_.queue_size)),
-      pipeline_(std::make_unique<Pipeline>(
-          options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); })),
       diagnostics_(nh, private_nh) {
-  // Before the worker starts (it owns the pipeline from then on); throws, stopping the node, if
-  // load_path exists but cannot be loaded, rather than start empty and autosave over it.
-  const std::string resumed = loadOnStart(*pipeline_, options_.load_path);
+  auto pipeline = std::make_unique<Pipeline>(
+      options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); });
+  // Before the worker takes the pipeline; throws, stopping the node, if load_path exists but
+  // cannot be loaded, rather than start empty and autosave over it.
+  const std::string resumed = loadOnStart(*pipeline, options_.load_path);
   if (!resumed.empty()) ROS_INFO_STREAM("map corrector: " << resumed);
-  snapshot_ = pipeline_->makeSnapshot();
+  worker_ = std::make_unique<PipelineWorker>(std::move(pipeline), static_cast<std::size_t>(options_.queue_size),
+                                             [](const std::string& e) { ROS_ERROR_STREAM("map corrector: " << e); });
   path_pub_ = private_nh_.advertise<nav_msgs::Path>(names::kPathTopic, 1, true);
   markers_pub_ = private_nh_.advertise<visualization_msgs::MarkerArray>(names::kMarkersTopic, 1, true);
-
-  worker_ = std::thread(&MapCorrectorNode::workerLoop, this);
 
   subscribeInputs();
 
@@ -102,12 +100,9 @@ MapCorrectorNode::~MapCorrectorNode() {
   for (ros::Subscriber& sub : input_subs_) sub.shutdown();
   if (service_spinner_) service_spinner_->stop();
   if (tf_spinner_) tf_spinner_->stop();
-  stop_ = true;
-  queue_.stop();
-  if (worker_.joinable()) worker_.join();
-  // The worker is gone: this thread may touch the pipeline.  Input still queued is not applied
-  // (a shutdown should not wait for a backlog); what was applied is saved.
-  const std::string error = pipeline_->autosave();
+  worker_->stop();
+  // The worker is gone: this thread may touch the pipeline and save what was applied.
+  const std::string error = worker_->pipeline().autosave();
   if (!options_.pipeline.persistence.autosave_path.empty() && error.empty())
     ROS_INFO_STREAM("map corrector: graph saved to " << options_.pipeline.persistence.autosave_path);
 }
@@ -126,51 +121,12 @@ void MapCorrectorNode::subscribeInputs() {
 template <class M>
 void MapCorrectorNode::enqueue(const boost::shared_ptr<const M>& msg, const char* what) {
   // Never blocks: a full queue drops the message and counts it (diagnostics, ~get_status).
-  if (!queue_.push(Item(PipelineMessage(msg))))
+  if (!worker_->push(PipelineMessage(msg)))
     ROS_WARN_THROTTLE(5.0, "map corrector: input queue full, %s message dropped", what);
 }
 
-void MapCorrectorNode::process(Item& item) {
-  if (auto* command = std::get_if<Command>(&item))
-    (*command)(*pipeline_);
-  else
-    feedPipeline(*pipeline_, std::get<PipelineMessage>(item));
-}
-
-void MapCorrectorNode::workerLoop() {
-  std::deque<Item> batch;
-  while (!stop_) {
-    // Sleep only when no optimisation round is in progress; otherwise take what came in and go on.
-    if (!queue_.popAll(batch, !pipeline_->hasScheduledWork())) break;
-    const std::uint64_t before = pipeline_->revision();
-    for (Item& item : batch) {
-      // The pipeline reports bad input as counted refusals; an exception here is a bug, and the
-      // node keeps running (and says so) rather than taking the robot's map down with it.
-      try {
-        process(item);
-      } catch (const std::exception& e) {
-        ROS_ERROR_STREAM("map corrector: input dropped after an internal error: " << e.what());
-      }
-    }
-    batch.clear();
-    pipeline_->runScheduledOptimization();
-    if (pipeline_->revision() != before) publishSnapshot();
-  }
-}
-
-void MapCorrectorNode::publishSnapshot() {
-  std::shared_ptr<const Snapshot> s = pipeline_->makeSnapshot();
-  std::lock_guard<std::mutex> lock(snapshot_mutex_);
-  snapshot_.swap(s);
-}
-
-std::shared_ptr<const Snapshot> MapCorrectorNode::snapshot() const {
-  std::lock_guard<std::mutex> lock(snapshot_mutex_);
-  return snapshot_;
-}
-
 void MapCorrectorNode::tfTimerCallback(const ros::TimerEvent&) {
-  const std::shared_ptr<const Snapshot> s = snapshot();
+  const std::shared_ptr<const Snapshot> s = worker_->snapshot();
   const ros::Time now = ros::Time::now();
   if (!s->has_map_T_odom || now.isZero()) return;  // nothing yet, or sim time before the first /clock
   // Stamped ahead so that tf lookups at "now" made by other nodes find it before the next tick.
@@ -188,7 +144,7 @@ void MapCorrectorNode::tfTimerCallback(const ros::TimerEvent&) {
 }
 
 void MapCorrectorNode::visualizationTimerCallback(const ros::TimerEvent&) {
-  const std::shared_ptr<const Snapshot> s = snapshot();
+  const std::shared_ptr<const Snapshot> s = worker_->snapshot();
   if (s->generation == published_generation_) return;
   const bool new_epoch = s->epoch != published_epoch_;
   const ros::Time now = ros::Time::now();
@@ -199,8 +155,8 @@ void MapCorrectorNode::visualizationTimerCallback(const ros::TimerEvent&) {
 }
 
 void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& status) {
-  const std::shared_ptr<const Snapshot> s = snapshot();
-  const std::size_t queued = queue_.size();
+  const std::shared_ptr<const Snapshot> s = worker_->snapshot();
+  const std::size_t queued = worker_->queueLength();
   if (queued * 2 > static_cast<std::size_t>(options_.queue_size))
     status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "input queue more than half full");
   else if (s->counters.autosave_failures > 0)
@@ -215,7 +171,7 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   for (const std::string& key : unknown_parameters_) unknown += (unknown.empty() ? "" : " ") + key;
   status.add("unknown parameters", unknown);
   status.add("queue length", queued);
-  status.add("queue dropped", queue_.dropped());
+  status.add("queue dropped", worker_->dropped());
   status.add("keyframes", s->keyframes.size());
   status.add("constraints", s->edges.size());
   status.add("loop closures applied", s->counters.loop_closures_applied);

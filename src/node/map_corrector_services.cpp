@@ -1,35 +1,12 @@
 // Services of MapCorrectorNode: each becomes a command the worker runs between passes, answered
-// through a future with a timeout, so no service ever touches the pipeline from another thread.
+// through a future with a timeout (PipelineWorker::call), so no service touches the pipeline from
+// another thread.  Commands capture by value: after a timeout they still run, later.
 #include <chrono>
 #include <cmath>
 
 #include "toro_ros/node/map_corrector_node.h"
 
 namespace toro_ros {
-
-template <class R>
-std::optional<R> MapCorrectorNode::runOnWorker(std::function<R(Pipeline&)> f) {
-  auto promise = std::make_shared<std::promise<R>>();
-  std::future<R> result = promise->get_future();
-  queue_.pushAlways(Command([promise, f = std::move(f), this](Pipeline& pipeline) {
-    try {
-      promise->set_value(f(pipeline));
-    } catch (...) {
-      promise->set_exception(std::current_exception());
-    }
-    // Commands change the map (reset, load, optimise): publish at once, not at the next message.
-    publishSnapshot();
-  }));
-  if (result.wait_for(std::chrono::duration<double>(options_.service_timeout_sec)) !=
-      std::future_status::ready)
-    return std::nullopt;
-  try {
-    return result.get();
-  } catch (const std::exception& e) {
-    ROS_ERROR_STREAM("map corrector: service command failed: " << e.what());
-    return std::nullopt;
-  }
-}
 
 namespace {
 constexpr const char* kTimedOut = "no answer from the worker (service_timeout_sec passed, or an internal error: see the log)";
@@ -38,7 +15,7 @@ constexpr const char* kTimedOut = "no answer from the worker (service_timeout_se
 bool MapCorrectorNode::optimizeService(Optimize::Request& req, Optimize::Response& res) {
   const unsigned iterations = req.iterations;
   const std::string mode = req.mode;
-  const auto r = runOnWorker<OptimizeResult>([&](Pipeline& p) { return p.optimize(iterations, mode); });
+  const auto r = runOnWorker<OptimizeResult>([iterations, mode](Pipeline& p) { return p.optimize(iterations, mode); });
   if (!r) {
     res.success = false;
     res.message = kTimedOut;
@@ -75,7 +52,7 @@ bool MapCorrectorNode::resetService(std_srvs::Trigger::Request&, std_srvs::Trigg
 
 bool MapCorrectorNode::saveGraphService(GraphFile::Request& req, GraphFile::Response& res) {
   const std::string path = req.path;
-  const auto r = runOnWorker<std::string>([&](Pipeline& p) { return p.saveGraph(path); });
+  const auto r = runOnWorker<std::string>([path](Pipeline& p) { return p.saveGraph(path); });
   res.success = r && r->empty();
   res.message = !r ? kTimedOut : (r->empty() ? "saved " + path : *r);
   return true;
@@ -83,7 +60,7 @@ bool MapCorrectorNode::saveGraphService(GraphFile::Request& req, GraphFile::Resp
 
 bool MapCorrectorNode::loadGraphService(GraphFile::Request& req, GraphFile::Response& res) {
   const std::string path = req.path;
-  const auto r = runOnWorker<std::string>([&](Pipeline& p) { return p.loadGraph(path); });
+  const auto r = runOnWorker<std::string>([path](Pipeline& p) { return p.loadGraph(path); });
   res.success = r && r->empty();
   res.message = !r ? kTimedOut : (r->empty() ? "loaded " + path : *r);
   return true;
@@ -103,8 +80,8 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
   }
   res.odometry_messages = r->counters.odometry_messages;
   res.time_jump_resets = r->counters.time_jump_resets;
-  res.queue_length = queue_.size();
-  res.queue_dropped = queue_.dropped();
+  res.queue_length = worker_->queueLength();
+  res.queue_dropped = worker_->dropped();
   res.last_chi2 = r->last_chi2;
   res.last_optimization_sec = r->last_optimization_sec;
   res.paused = r->paused;

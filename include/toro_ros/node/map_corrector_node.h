@@ -7,14 +7,10 @@
 // and spinner so map->odom keeps its rate whatever else is busy.
 #pragma once
 
-#include <atomic>
+#include <chrono>
 #include <functional>
-#include <future>
 #include <memory>
-#include <mutex>
 #include <optional>
-#include <thread>
-#include <variant>
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <nav_msgs/Odometry.h>
@@ -27,8 +23,8 @@
 #include "toro_ros/GraphFile.h"
 #include "toro_ros/LoopClosure.h"
 #include "toro_ros/Optimize.h"
-#include "toro_ros/node/input_queue.h"
 #include "toro_ros/node/node_options.h"
+#include "toro_ros/node/pipeline_worker.h"
 #include "toro_ros/pipeline/input_table.h"
 #include "toro_ros/pipeline/pipeline.h"
 
@@ -39,32 +35,28 @@ class MapCorrectorNode {
   // Reads ~ parameters (throws std::invalid_argument naming the bad ones), advertises, subscribes
   // and starts the worker.
   MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_nh);
-  // Stops the worker (flag, notify, join), then autosaves (persistence.autosave_path) what it applied.
+  // Stops the producers and the worker, then autosaves (persistence.autosave_path) what it applied.
   ~MapCorrectorNode();
 
   MapCorrectorNode(const MapCorrectorNode&) = delete;
   MapCorrectorNode& operator=(const MapCorrectorNode&) = delete;
 
  private:
-  using Command = std::function<void(Pipeline&)>;
-  using Item = std::variant<PipelineMessage, Command>;
-
   // One subscription per row of the input table (pipeline/input_table.h), shared with the
   // offline runner so both feed the pipeline the same way.
   void subscribeInputs();
   template <class M>
   void enqueue(const boost::shared_ptr<const M>& msg, const char* what);
-  void workerLoop();
-  void process(Item& item);
-  void publishSnapshot();
   void tfTimerCallback(const ros::TimerEvent&);
   void visualizationTimerCallback(const ros::TimerEvent&);
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& status);
-  std::shared_ptr<const Snapshot> snapshot() const;
 
   // Runs `f` on the worker and waits (service_timeout_sec) for its result; nullopt on timeout.
+  // `f` must own what it uses (capture by value): after a timeout it still runs later.
   template <class R>
-  std::optional<R> runOnWorker(std::function<R(Pipeline&)> f);
+  std::optional<R> runOnWorker(std::function<R(Pipeline&)> f) {
+    return worker_->call<R>(std::move(f), std::chrono::duration<double>(options_.service_timeout_sec));
+  }
 
   bool optimizeService(Optimize::Request& req, Optimize::Response& res);
   bool pauseService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
@@ -77,12 +69,7 @@ class MapCorrectorNode {
   ros::NodeHandle nh_, private_nh_;
   std::vector<std::string> unknown_parameters_;  // private keys nobody reads (shown in diagnostics)
   NodeOptions options_;
-  InputQueue<Item> queue_;
-  std::unique_ptr<Pipeline> pipeline_;  // touched only by the worker thread (after construction)
-  std::atomic<bool> stop_{false};
-
-  mutable std::mutex snapshot_mutex_;  // guards snapshot_ (the pointer, not the pointee)
-  std::shared_ptr<const Snapshot> snapshot_;
+  std::unique_ptr<PipelineWorker> worker_;
 
   // Visualisation timer state (only its callback touches these).
   std::uint64_t published_generation_ = 0;
@@ -98,7 +85,6 @@ class MapCorrectorNode {
   ros::Time last_tf_stamp_;
   std::unique_ptr<ros::AsyncSpinner> tf_spinner_, service_spinner_;
   diagnostic_updater::Updater diagnostics_;
-  std::thread worker_;
 };
 
 }  // namespace toro_ros

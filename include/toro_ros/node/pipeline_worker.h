@@ -1,0 +1,93 @@
+// The thread that owns a Pipeline: messages in through a bounded queue (never blocking the
+// caller), commands in through the same queue with a future for their answer, results out as
+// immutable Snapshots.  No ROS transport here (no NodeHandle, no spinning), so the threading is
+// tested by a plain gtest under ThreadSanitizer (test/node/test_pipeline_worker.cpp);
+// MapCorrectorNode only wires subscriptions, services and timers to it.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <deque>
+#include <functional>
+#include <future>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <variant>
+
+#include "toro_ros/node/input_queue.h"
+#include "toro_ros/pipeline/input_table.h"
+#include "toro_ros/pipeline/pipeline.h"
+
+namespace toro_ros {
+
+class PipelineWorker {
+ public:
+  using Command = std::function<void(Pipeline&)>;
+  using ErrorSink = std::function<void(const std::string&)>;
+
+  // Takes the pipeline (nobody else may touch it until stop()) and starts the thread.  `on_error`
+  // gets the text of an exception a message or command threw (a bug: the worker goes on).
+  PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t queue_capacity, ErrorSink on_error);
+  ~PipelineWorker();  // stop()
+
+  PipelineWorker(const PipelineWorker&) = delete;
+  PipelineWorker& operator=(const PipelineWorker&) = delete;
+
+  // Queues a message unless the queue is full (then it is dropped and counted; false).
+  bool push(PipelineMessage message) { return queue_.push(Item(std::move(message))); }
+
+  // Runs `f` on the worker between optimisation passes and waits up to `timeout` for its result:
+  // nullopt on timeout (the command still runs later) or if `f` threw (reported to on_error).
+  // Commands are never dropped by the queue bound: each has a caller waiting for it.
+  template <class R>
+  std::optional<R> call(std::function<R(Pipeline&)> f, std::chrono::duration<double> timeout);
+
+  // The newest published state; never blocks on the worker.
+  std::shared_ptr<const Snapshot> snapshot() const;
+  std::size_t queueLength() const { return queue_.size(); }
+  std::uint64_t dropped() const { return queue_.dropped(); }
+
+  // Stops the thread (input still queued is not applied: a shutdown should not wait for a
+  // backlog) and joins it.  Idempotent.  Afterwards pipeline() may be used by the caller's thread.
+  void stop();
+  Pipeline& pipeline();  // only after stop()
+
+ private:
+  using Item = std::variant<PipelineMessage, Command>;
+  void loop();
+  void process(Item& item);
+  void publishSnapshot();
+
+  std::unique_ptr<Pipeline> pipeline_;  // touched only by the worker thread until stop()
+  ErrorSink on_error_;
+  InputQueue<Item> queue_;
+  std::atomic<bool> stopped_{false};
+  mutable std::mutex snapshot_mutex_;  // guards snapshot_ (the pointer, not the pointee)
+  std::shared_ptr<const Snapshot> snapshot_;
+  std::thread thread_;
+};
+
+template <class R>
+std::optional<R> PipelineWorker::call(std::function<R(Pipeline&)> f, std::chrono::duration<double> timeout) {
+  auto promise = std::make_shared<std::promise<R>>();
+  std::future<R> result = promise->get_future();
+  queue_.pushAlways(Item(Command([promise, f = std::move(f)](Pipeline& pipeline) {
+    try {
+      promise->set_value(f(pipeline));
+    } catch (...) {
+      promise->set_exception(std::current_exception());
+    }
+  })));
+  if (result.wait_for(timeout) != std::future_status::ready) return std::nullopt;
+  try {
+    return result.get();
+  } catch (const std::exception& e) {
+    if (on_error_) on_error_(std::string("command failed: ") + e.what());
+    return std::nullopt;
+  }
+}
+
+}  // namespace toro_ros

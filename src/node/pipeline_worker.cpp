@@ -1,0 +1,70 @@
+#include "toro_ros/node/pipeline_worker.h"
+
+#include <stdexcept>
+
+namespace toro_ros {
+
+PipelineWorker::PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t queue_capacity, ErrorSink on_error)
+    : pipeline_(std::move(pipeline)), on_error_(std::move(on_error)), queue_(queue_capacity) {
+  if (!pipeline_) throw std::invalid_argument("PipelineWorker needs a pipeline");
+  snapshot_ = pipeline_->makeSnapshot();
+  thread_ = std::thread(&PipelineWorker::loop, this);
+}
+
+PipelineWorker::~PipelineWorker() { stop(); }
+
+void PipelineWorker::stop() {
+  queue_.stop();
+  if (thread_.joinable()) thread_.join();
+  stopped_ = true;
+}
+
+Pipeline& PipelineWorker::pipeline() {
+  if (!stopped_) throw std::logic_error("PipelineWorker::pipeline() before stop()");
+  return *pipeline_;
+}
+
+std::shared_ptr<const Snapshot> PipelineWorker::snapshot() const {
+  std::lock_guard<std::mutex> lock(snapshot_mutex_);
+  return snapshot_;
+}
+
+void PipelineWorker::publishSnapshot() {
+  std::shared_ptr<const Snapshot> s = pipeline_->makeSnapshot();
+  std::lock_guard<std::mutex> lock(snapshot_mutex_);
+  snapshot_.swap(s);
+}
+
+void PipelineWorker::process(Item& item) {
+  if (auto* command = std::get_if<Command>(&item)) {
+    (*command)(*pipeline_);
+    // Commands change the map (reset, load, optimise) or are asked about it: publish at once,
+    // not at the next message.
+    publishSnapshot();
+  } else {
+    feedPipeline(*pipeline_, std::get<PipelineMessage>(item));
+  }
+}
+
+void PipelineWorker::loop() {
+  std::deque<Item> batch;
+  // Sleep only when no optimisation round is in progress; otherwise take what came in and go on,
+  // so messages and commands wait at most one pass.
+  while (queue_.popAll(batch, !pipeline_->hasScheduledWork())) {
+    const std::uint64_t before = pipeline_->revision();
+    for (Item& item : batch) {
+      // The pipeline reports bad input as counted refusals; an exception here is a bug, and the
+      // worker keeps running (and says so) rather than taking the robot's map down with it.
+      try {
+        process(item);
+      } catch (const std::exception& e) {
+        if (on_error_) on_error_(std::string("input dropped after an internal error: ") + e.what());
+      }
+    }
+    batch.clear();
+    pipeline_->runScheduledOptimization();
+    if (pipeline_->revision() != before) publishSnapshot();
+  }
+}
+
+}  // namespace toro_ros

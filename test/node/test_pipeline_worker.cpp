@@ -1,0 +1,199 @@
+// PipelineWorker: the node's worker thread without ROS transport.  These are the worker-thread
+// tests scripts/sanitize.sh runs under ThreadSanitizer: producers, service-like commands and
+// snapshot readers on other threads while the worker applies messages and optimises.
+#include <atomic>
+#include <chrono>
+#include <future>
+#include <stdexcept>
+#include <thread>
+#include <vector>
+
+#include <boost/make_shared.hpp>
+#include <gtest/gtest.h>
+
+#include "../pipeline/drift_scenario.h"
+#include "toro_ros/node/pipeline_worker.h"
+
+using namespace toro_ros;
+using toro_ros::testing::DriftScenario;
+using toro_ros::testing::makeDriftingSquare;
+using toro_ros::testing::trueLoopClosure;
+
+namespace {
+
+using std::chrono::duration;
+constexpr duration<double> kAnswer{30.0};  // generous: only a hung worker should ever hit it
+
+PipelineOptions options() {
+  PipelineOptions o = toro_ros::testing::baseTestOptions();
+  o.optimization.full_every_keyframes = 10;
+  o.optimization.full_iterations = 5;
+  return o;
+}
+
+PipelineMessage message(const nav_msgs::Odometry& m) { return boost::make_shared<nav_msgs::Odometry>(m); }
+PipelineMessage message(const LoopClosure& m) { return boost::make_shared<LoopClosure>(m); }
+
+struct Errors {
+  std::mutex mutex;
+  std::vector<std::string> texts;
+  PipelineWorker::ErrorSink sink() {
+    return [this](const std::string& e) {
+      std::lock_guard<std::mutex> lock(mutex);
+      texts.push_back(e);
+    };
+  }
+};
+
+// Blocks the worker inside a command until release() (to fill its queue deterministically).
+class Gate {
+ public:
+  explicit Gate(PipelineWorker& w) {
+    std::shared_future<void> r = released_.get_future().share();
+    std::promise<void>* e = &entered_;
+    caller_ = std::thread([&w, r, e] {
+      w.call<bool>([r, e](Pipeline&) { return e->set_value(), r.wait(), true; }, kAnswer);
+    });
+    entered_.get_future().wait();
+  }
+  ~Gate() { release(); }
+  void release() {
+    if (!caller_.joinable()) return;
+    released_.set_value();
+    caller_.join();
+  }
+
+ private:
+  std::promise<void> entered_, released_;
+  std::thread caller_;
+};
+
+PipelineStatus status(PipelineWorker& w) {
+  const std::optional<PipelineStatus> s = w.call<PipelineStatus>([](Pipeline& p) { return p.status(); }, kAnswer);
+  EXPECT_TRUE(s.has_value());
+  return s.value_or(PipelineStatus{});
+}
+
+}  // namespace
+
+TEST(PipelineWorker, ConcurrentProducersCommandsAndReadersLoseNothing) {
+  const DriftScenario sc = makeDriftingSquare();
+  Errors errors;
+  PipelineWorker worker(std::make_unique<Pipeline>(options()), 100000, errors.sink());
+  std::atomic<bool> done{false};
+  // Readers as the tf / visualisation timers and the status service: they never block the worker.
+  // Snapshots are whole and in order: generations and keyframe counts never go back.
+  std::thread reader([&] {
+    std::uint64_t generation = 0;
+    std::size_t keyframes = 0;
+    while (!done) {
+      const std::shared_ptr<const Snapshot> s = worker.snapshot();
+      EXPECT_GE(s->generation, generation);
+      EXPECT_GE(s->keyframes.size(), keyframes);
+      if (!s->keyframes.empty()) {
+        EXPECT_GE(s->edges.size() + 1, s->keyframes.size());  // one chain
+      }
+      generation = s->generation;
+      keyframes = s->keyframes.size();
+    }
+  });
+  std::thread service([&] {
+    while (!done) EXPECT_LE(status(worker).counters.odometry_messages, sc.odometry.size());
+  });
+  const std::size_t last = sc.odometry.size() - 1;
+  std::thread odometry([&] {
+    for (const auto& m : sc.odometry) EXPECT_TRUE(worker.push(message(m)));
+  });
+  odometry.join();
+  EXPECT_TRUE(worker.push(message(trueLoopClosure(sc, 0, last))));
+  // A command is queued behind every message pushed before it: its answer sees them all.
+  const PipelineStatus s = status(worker);
+  done = true;
+  reader.join();
+  service.join();
+  EXPECT_EQ(s.counters.odometry_messages, sc.odometry.size());
+  EXPECT_EQ(s.counters.odometry_refused, 0u);
+  EXPECT_EQ(s.counters.loop_closures_applied, 1u);
+  EXPECT_EQ(worker.dropped(), 0u);
+  EXPECT_TRUE(errors.texts.empty());
+  // The snapshot follows: after the command the newest state is published.
+  EXPECT_EQ(worker.snapshot()->keyframes.size(), s.keyframes);
+}
+
+TEST(PipelineWorker, CommandsAreAnsweredBetweenPassesOfARunningRound) {
+  const DriftScenario sc = makeDriftingSquare();
+  PipelineOptions o = options();
+  o.optimization.full_every_keyframes = 1;
+  o.optimization.full_iterations = 1000000;  // a round that outlasts the test
+  Errors errors;
+  PipelineWorker worker(std::make_unique<Pipeline>(o), 100000, errors.sink());
+  const std::size_t last = sc.odometry.size() - 1;
+  for (std::size_t i = 0; i < last; ++i) worker.push(message(sc.odometry[i]));
+  worker.push(message(trueLoopClosure(sc, 0, last - 1)));
+  worker.push(message(sc.odometry[last]));  // a keyframe after the loop closure: the round is due
+  // The round starts after the batch holding the last keyframe; a few calls in, it is running.
+  bool in_round = false;
+  for (int i = 0; i < 100 && !in_round; ++i)
+    in_round = worker.call<bool>([](Pipeline& p) { return p.hasScheduledWork(); }, kAnswer).value_or(false);
+  ASSERT_TRUE(in_round);
+  // Status, save and pause answered while the round goes on; passes advance between calls.
+  const std::uint64_t passes = status(worker).counters.optimization_passes;
+  std::uint64_t later = passes;
+  for (int i = 0; i < 1000 && later == passes; ++i) later = status(worker).counters.optimization_passes;
+  EXPECT_GT(later, passes);
+  const auto paused = worker.call<bool>([](Pipeline& p) { return p.setPaused(true), p.paused(); }, kAnswer);
+  EXPECT_TRUE(paused.value_or(false));
+  const std::uint64_t at_pause = status(worker).counters.optimization_passes;
+  EXPECT_EQ(status(worker).counters.optimization_passes, at_pause);  // paused: no pass in between
+  // stop() mid-round returns (does not wait for a million passes).
+  EXPECT_TRUE(worker.call<bool>([](Pipeline& p) { return p.setPaused(false), true; }, kAnswer).has_value());
+  worker.stop();
+  EXPECT_TRUE(worker.pipeline().hasScheduledWork());
+  EXPECT_TRUE(errors.texts.empty());
+}
+
+TEST(PipelineWorker, FullQueueDropsAndCountsCommandsAreNeverDropped) {
+  const DriftScenario sc = makeDriftingSquare(1);
+  PipelineWorker worker(std::make_unique<Pipeline>(options()), 10, nullptr);
+  Gate gate(worker);  // the worker is inside a command: nothing is taken off the queue
+  std::size_t accepted = 0;
+  for (std::size_t i = 0; i < 25; ++i) accepted += worker.push(message(sc.odometry[i]));
+  EXPECT_EQ(accepted, 10u);
+  EXPECT_EQ(worker.dropped(), 15u);
+  EXPECT_EQ(worker.queueLength(), 10u);
+  // A command beyond the bound still gets in (its caller is waiting for it).
+  std::future<std::optional<PipelineStatus>> answer = std::async(std::launch::async, [&] {
+    return worker.call<PipelineStatus>([](Pipeline& p) { return p.status(); }, kAnswer);
+  });
+  gate.release();
+  const std::optional<PipelineStatus> s = answer.get();
+  ASSERT_TRUE(s.has_value());
+  EXPECT_EQ(s->counters.odometry_messages, 10u);
+}
+
+TEST(PipelineWorker, TimeoutAndThrowingCommandsLeaveTheWorkerRunning) {
+  Errors errors;
+  PipelineWorker worker(std::make_unique<Pipeline>(options()), 100, errors.sink());
+  Gate gate(worker);
+  // Times out while the worker is busy; the command owns its data and still runs afterwards.
+  const std::string why = "set by a command that timed out";
+  const auto late = worker.call<bool>([why](Pipeline& p) { return p.reset(why), true; }, duration<double>(0.01));
+  EXPECT_FALSE(late.has_value());
+  gate.release();
+  EXPECT_EQ(status(worker).counters.resets, 1u);  // the late command ran before this one
+
+  const auto thrown = worker.call<int>([](Pipeline&) -> int { throw std::runtime_error("boom"); }, kAnswer);
+  EXPECT_FALSE(thrown.has_value());
+  ASSERT_EQ(errors.texts.size(), 1u);
+  EXPECT_NE(errors.texts[0].find("boom"), std::string::npos);
+  EXPECT_EQ(status(worker).counters.resets, 1u);  // still answering
+}
+
+TEST(PipelineWorker, PipelineIsOnlyHandedOutAfterStop) {
+  PipelineWorker worker(std::make_unique<Pipeline>(options()), 10, nullptr);
+  EXPECT_THROW(worker.pipeline(), std::logic_error);
+  worker.stop();
+  worker.stop();  // idempotent
+  EXPECT_TRUE(worker.pipeline().graph().empty());
+  EXPECT_THROW(PipelineWorker(nullptr, 10, nullptr), std::invalid_argument);
+}
