@@ -103,6 +103,14 @@ class NodeProcess {
     reaped_ = true;
     return WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL;
   }
+  // SIGTERM (what systemd or docker stop send) and reap; true if it exited with status 0.
+  bool terminate() {
+    ::kill(pid_, SIGTERM);
+    int st = 0;
+    waitpid(pid_, &st, 0);
+    reaped_ = true;
+    return WIFEXITED(st) && WEXITSTATUS(st) == 0;
+  }
   bool started() const { return pid_ > 0; }
 
  private:
@@ -228,6 +236,11 @@ TEST(KillResume, KilledNodeResumesFromItsAutosaveAndLosesAtMostOnePeriod) {
   const GetStatus::Response end = *status();
   EXPECT_EQ(end.time_jump_resets, 0u);
   EXPECT_EQ(end.queue_dropped, 0u);
+  EXPECT_GT(end.autosaves, 0u);
+  // A clean stop saves what the node has: the autosave then holds the whole final graph.
+  ASSERT_TRUE(second.terminate()) << readFile(log);
+  EXPECT_EQ(readSidecar(sidecarPath(autosave)).keyframes.size(), end.keyframes);
+  EXPECT_EQ(toro::readGraph(autosave).numConstraints(), end.constraints);
 
   // The uninterrupted run: toro_offline on the same bag and configuration, 20 final passes.
   const std::string cmd = std::string(TORO_OFFLINE_BIN) + " " + bag + " --config " + TORO_SOURCE_DIR +
