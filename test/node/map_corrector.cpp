@@ -396,6 +396,51 @@ TEST(MapCorrector, TimeJumpBackResetsTheGraph) {
   EXPECT_EQ(client->status().keyframes, 1u);
 }
 
+TEST(MapCorrector, ServicesOnAnEmptyGraphBadPathsAndWrongFramesAnswerWithTheReason) {
+  ASSERT_TRUE(client->trigger("reset"));
+  ASSERT_EQ(client->status().keyframes, 0u);
+  Optimize opt;
+  opt.request.iterations = 5;
+  opt.request.mode = "full";
+  ASSERT_TRUE(ros::service::call("/map_corrector/optimize", opt));
+  EXPECT_FALSE(opt.response.success);
+  EXPECT_NE(opt.response.message.find("nothing to optimise"), std::string::npos) << opt.response.message;
+  const GraphFile::Response empty = client->graphFile("save_graph", temp_dir + "/empty.g2o");
+  EXPECT_FALSE(empty.success);
+  EXPECT_NE(empty.message.find("empty"), std::string::npos) << empty.message;
+
+  // Two keyframes, then a save into a directory that does not exist and a load of garbage.
+  const ros::Time t0(400.0);
+  client->publishOdometry(toro_ros::testing::odometryMsg(t0, toro::Pose3()));
+  client->publishOdometry(toro_ros::testing::odometryMsg(t0 + ros::Duration(1.0), toro::Pose3::fromRollPitchYaw(2, 0, 0, 0, 0, 0)));
+  ASSERT_TRUE(Client::waitFor([&] { return client->status().keyframes == 2; }));
+  const std::string unwritable = "/nonexistent_toro_dir/map.g2o";
+  const GraphFile::Response bad_save = client->graphFile("save_graph", unwritable);
+  EXPECT_FALSE(bad_save.success);
+  EXPECT_NE(bad_save.message.find(unwritable), std::string::npos) << bad_save.message;
+  const std::string garbage = temp_dir + "/garbage.g2o";
+  std::ofstream(garbage) << "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nEDGE_SE3:QUAT 0 1 oops\n";
+  const GraphFile::Response bad_load = client->graphFile("load_graph", garbage);
+  EXPECT_FALSE(bad_load.success);
+  EXPECT_NE(bad_load.message.find(garbage + ":2"), std::string::npos) << bad_load.message;
+  EXPECT_EQ(client->status().keyframes, 2u);  // a failed load changes nothing
+
+  // Odometry in a frame other than odom_frame is refused and counted, in ~get_status and diagnostics.
+  const GetStatus::Response before = client->status();
+  nav_msgs::Odometry wrong = toro_ros::testing::odometryMsg(t0 + ros::Duration(2.0), toro::Pose3::fromRollPitchYaw(4, 0, 0, 0, 0, 0));
+  wrong.header.frame_id = "wheel_odom";
+  client->publishOdometry(wrong);
+  ASSERT_TRUE(Client::waitFor([&] { return refusedCount(client->status(), "odometry: wrong frame") == refusedCount(before, "odometry: wrong frame") + 1; }));
+  EXPECT_EQ(client->status().keyframes, 2u);
+  const std::string count = std::to_string(refusedCount(client->status(), "odometry: wrong frame"));
+  EXPECT_TRUE(client->waitObserved([&](const Observed& o) {
+    if (!o.diagnostics) return false;
+    for (const auto& kv : o.diagnostics->values)
+      if (kv.key == "refused: odometry: wrong frame") return kv.value == count;
+    return false;
+  }));
+}
+
 int main(int argc, char** argv) {
   ::testing::InitGoogleTest(&argc, argv);
   ros::init(argc, argv, "map_corrector_test_client");
