@@ -5,6 +5,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include <ros/serialization.h>
+
 #include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/sparse_finisher.h"
@@ -35,6 +37,18 @@ std::string describe(const LoopClosure& msg) {
   if (msg.id_from >= 0 && msg.id_to >= 0)
     return "loop closure " + std::to_string(msg.id_from) + " -> " + std::to_string(msg.id_to);
   return "loop closure " + stampString(msg.stamp_from) + " -> " + stampString(msg.stamp_to);
+}
+
+// FNV-1a over the serialised message: equal for resent copies of one message (a 64-bit
+// collision between two different loop closures is not a practical concern).
+std::uint64_t messageHash(const LoopClosure& msg) {
+  const std::uint32_t size = ros::serialization::serializationLength(msg);
+  std::vector<std::uint8_t> buffer(size);
+  ros::serialization::OStream stream(buffer.data(), size);
+  ros::serialization::serialize(stream, msg);
+  std::uint64_t h = 1469598103934665603ull;
+  for (std::uint8_t b : buffer) h = (h ^ b) * 1099511628211ull;
+  return h;
 }
 
 // tf2 ignores a leading slash ("/odom" is "odom").
@@ -208,6 +222,15 @@ toro::Pose3 Pipeline::keyframeToStamp(toro::NodeId keyframe, const ros::Time& st
 }
 
 void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match) {
+  // The same message twice (a bridge or recogniser that resends) would count one measurement
+  // twice; two different measurements of the same pair are independent and both kept.
+  if (!applied_messages_.insert(messageHash(msg)).second) {
+    MatchResult refused = match;
+    refused.reason = refusal::kDuplicate;
+    refused.detail = "the same message (stamps, ids, pose, covariance) was applied before";
+    refuseLoopClosure(refused, msg);
+    return;
+  }
   const InformationResult info =
       informationFromCovariance(msg.covariance, options_.loop_closure_default_stddev);
   toro::Pose3 measurement = poseFromMsg(msg.from_T_to);
@@ -395,6 +418,7 @@ void Pipeline::clearGraph() {
   last_full_stamp_ = ros::Time();
   full_passes_left_ = 0;
   last_chi2_ = kNaN;
+  applied_messages_.clear();
   resume_after_.reset();
   loaded_until_ = ros::Time();
   ++counters_.resets;

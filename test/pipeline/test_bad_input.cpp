@@ -183,14 +183,22 @@ TEST(BadInput, UnknownIdIsRefused) {
   EXPECT_TRUE(f.warned("loop closure", "1000"));
 }
 
-TEST(BadInput, DuplicateLoopClosuresAreAppliedAsIndependentMeasurements) {
-  // A recogniser that reports the same place twice gives two parallel constraints: the graph
-  // treats them as two measurements (twice the information), which the optimiser handles.
+TEST(BadInput, ResentLoopClosureIsRefusedAsDuplicateASecondMeasurementIsKept) {
+  // The same message twice (resent by a bridge) is one measurement: the copy is refused.  A
+  // second, different measurement of the same pair is independent and kept (twice the
+  // information, which the optimiser handles).
   Fixture f;
   f.drive(40);
   const std::size_t constraints = f.pipeline.status().constraints;
-  f.pipeline.handleLoopClosure(loopClosure(0, 30));
-  f.pipeline.handleLoopClosure(loopClosure(0, 30));
+  const LoopClosure first = loopClosure(0, 30);
+  f.pipeline.handleLoopClosure(first);
+  f.pipeline.handleLoopClosure(first);
+  EXPECT_EQ(f.pipeline.status().counters.loop_closures_applied, 1u);
+  EXPECT_EQ(f.count("loop closure: duplicate message"), 1u);
+  EXPECT_TRUE(f.warned("loop closure", "applied before"));
+  LoopClosure second = first;
+  second.from_T_to.position.x += 0.01;
+  f.pipeline.handleLoopClosure(second);
   EXPECT_EQ(f.pipeline.status().counters.loop_closures_applied, 2u);
   EXPECT_EQ(f.pipeline.status().constraints, constraints + 2);
   const OptimizeResult r = f.pipeline.optimize(5, "full");

@@ -64,6 +64,7 @@ constexpr const char* kSameKeyframe = "both ends on one keyframe";
 constexpr const char* kPendingFull = "pending list full";
 constexpr const char* kReset = "dropped by reset";
 constexpr const char* kGraph = "refused by the graph";
+constexpr const char* kDuplicate = "duplicate message";
 // Sent at or before the newest keyframe of a loaded map: already in it (a replay from the start).
 constexpr const char* kBeforeResume = "before the resumed map";
 }  // namespace refusal

@@ -10,6 +10,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <unordered_set>
 #include <vector>
 
 #include <nav_msgs/Odometry.h>
@@ -219,6 +220,7 @@ class Pipeline {
   std::size_t gate_constraint_ = 0;  // the candidate's constraint index
   ros::Time gate_stamp_;              // its message's header stamp
   std::vector<RejectedLoopClosure> rejected_;
+  std::unordered_set<std::uint64_t> applied_messages_;  // hashes of applied loop-closure messages
   // Persistence: set by loadGraph until newer odometry arrives; the last autosave.
   std::optional<ros::Time> resume_after_;
   ros::Time loaded_until_;  // newest keyframe stamp of the last load (input up to it is refused)
