@@ -1,8 +1,12 @@
 // In-process profile of the worker's per-loop-closure work at 20,000 keyframes, on the graph of
 // bench_node_latency (a 500-keyframe circuit, a loop closure every 100 keyframes to one lap back):
 // the affected TORO pass (+ the g2o chi2 the pipeline computes after it), a Snapshot, and the chi2
-// alone.  No ROS master, no threads.  Usage: bench_pipeline_step [keyframes]
+// alone, and an autosave of the whole graph.  No ROS master, no threads.  Usage: bench_pipeline_step [keyframes]
+#include <unistd.h>
+
+#include <algorithm>
 #include <chrono>
+#include <filesystem>
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -72,10 +76,26 @@ int main(int argc, char** argv) {
   double sink = 0;
   for (int k = 0; k < kRepeats; ++k) sink += toro::g2oChi2(p.graph());
   const double chi2_ms = msSince(t0) / kRepeats;
+  // An autosave: graph + sidecar to temporary files, fsync, rename (what the worker does every
+  // autosave_period_sec); median of 5.
+  char dir[] = "/tmp/toro_bench_save_XXXXXX";
+  std::vector<double> save_ms;
+  if (mkdtemp(dir) != nullptr) {
+    for (int k = 0; k < 5; ++k) {
+      t0 = std::chrono::steady_clock::now();
+      const std::string error = p.saveGraph(std::string(dir) + "/map.g2o");
+      save_ms.push_back(msSince(t0));
+      if (!error.empty()) std::printf("save failed: %s\n", error.c_str());
+    }
+    std::filesystem::remove_all(dir);
+    std::sort(save_ms.begin(), save_ms.end());
+  }
   std::printf("keyframes %zu, constraints %zu (chi2 %.3g)\n", p.keyframes().size(),
               p.graph().numConstraints(), sink / kRepeats);
   std::printf("affected pass + chi2, mean over the last quarter's loop closures: %.2f ms (n=%d)\n",
               affected_ms / affected_n, affected_n);
   std::printf("makeSnapshot: %.2f ms   g2oChi2 alone: %.2f ms\n", snapshot_ms, chi2_ms);
+  if (!save_ms.empty()) std::printf("saveGraph (autosave): median %.1f ms of 5 (min %.1f, max %.1f)\n",
+                                    save_ms[2], save_ms.front(), save_ms.back());
   return 0;
 }
