@@ -109,7 +109,7 @@ int main(int argc, char** argv) {
   std::vector<ros::Time> stamps;
   truths.reserve(total);
   stamps.reserve(total);
-  std::size_t max_queue = 0, dropped = 0, keyframes = 0;
+  std::size_t max_queue = 0, keyframes = 0;
   ros::WallRate pace(rate);
   for (std::size_t i = 0; i < total && ros::ok(); ++i) {
     const ros::Time now = ros::Time::now();
@@ -138,7 +138,6 @@ int main(int argc, char** argv) {
       toro_ros::GetStatus s;
       if (ros::service::call("/map_corrector/get_status", s)) {
         max_queue = std::max<std::size_t>(max_queue, s.response.queue_length);
-        dropped = s.response.queue_dropped;
         keyframes = s.response.keyframes;
         std::fprintf(
             stderr,
