@@ -177,6 +177,8 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   status.add("loop closures applied", s->counters.loop_closures_applied);
   status.add("loop closures refused", s->counters.loop_closures_refused);
   status.add("loop closures pending", s->pending_loop_closures);
+  status.add("loop closures rejected", s->counters.loop_closures_rejected);
+  status.add("loop closures readmitted", s->counters.loop_closures_readmitted);
   // The same counts as ~get_status's refused_reasons/refused_counts, one key per reason.
   for (const auto& [reason, count] : s->counters.refused_by_reason) status.add("refused: " + reason, count);
   status.add("autosaves", s->counters.autosaves);

@@ -86,6 +86,7 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
   res.last_optimization_sec = r->last_optimization_sec;
   res.paused = r->paused;
   res.loop_closures_rejected = r->counters.loop_closures_rejected;
+  res.loop_closures_readmitted = r->counters.loop_closures_readmitted;
   res.autosaves = r->counters.autosaves;
   res.autosave_failures = r->counters.autosave_failures;
   for (const RejectedLoopClosure& x : r->rejected)

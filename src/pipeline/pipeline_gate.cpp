@@ -37,6 +37,9 @@ double innovationChi2(const toro::PoseGraph& before, const toro::PoseGraph& afte
   return e0.dot(k.information * e1);
 }
 
+constexpr const char* kArrivalReason = "loop closure: failed the chi-square gate";
+constexpr const char* kRecheckReason = "loop closure: failed the chi-square gate on re-check";
+
 }  // namespace
 
 void Pipeline::beginGate(const LoopClosure& msg) {
@@ -78,10 +81,51 @@ void Pipeline::rejectCandidate(double chi2) {
   ++counters_.loop_closures_rejected;
   ++counters_.loop_closures_refused;
   rejected_.push_back(RejectedLoopClosure{candidate, gate_stamp_, chi2});
-  refuse("loop closure: failed the chi-square gate",
+  refuse(kArrivalReason,
          "loop closure " + std::to_string(candidate.from) + " -> " + std::to_string(candidate.to) +
              " (message stamp " + stampString(gate_stamp_) + ") rejected: chi2 " + std::to_string(chi2) +
              " after its pass exceeds " + std::to_string(gate_threshold_) + "; the graph is restored without it");
+}
+
+// A right loop closure can fail the gate because a wrong one that passed (the gate cannot know
+// better at the time) bends the map near it; the re-check removes the wrong one later, one per
+// round.  So when a round ends with no loop closure failing, each rejected one is tested again
+// against the map as it is now: if its chi2 at the current poses, before any pass (stricter than
+// the innovation test it failed), is within the threshold, the map agrees with it and it is
+// applied.  A wrong one never agrees with a right map.
+bool Pipeline::readmitRejected() {
+  const toro::PoseGraph& g = optimizer_.graph();
+  std::size_t readmitted = 0;
+  for (auto it = rejected_.begin(); it != rejected_.end();) {
+    const toro::Constraint& c = it->constraint;
+    if (!g.hasNode(c.from) || !g.hasNode(c.to)) {
+      ++it;
+      continue;
+    }
+    const toro::Vector6 e = toro::errorSE3(g.pose(c.from), g.pose(c.to), c.measurement);
+    if (!(e.dot(c.information * e) <= gate_threshold_)) {
+      ++it;
+      continue;
+    }
+    optimizer_.addConstraint(c);
+    is_loop_closure_.push_back(true);
+    ++counters_.loop_closures_applied;
+    ++counters_.loop_closures_readmitted;
+    --counters_.loop_closures_rejected;
+    --counters_.loop_closures_refused;
+    // The counts by reason say how many are refused now, like loop_closures_rejected.
+    std::uint64_t& by_reason = counters_.refused_by_reason[it->stamp.isZero() ? kRecheckReason : kArrivalReason];
+    if (by_reason > 0) --by_reason;
+    it = rejected_.erase(it);
+    ++readmitted;
+  }
+  if (readmitted == 0) return false;
+  if (warn_) warn_(std::to_string(readmitted) + " rejected loop closure(s) re-admitted: the map agrees with them now");
+  affected_pending_ = true;
+  loop_closures_since_full_ += readmitted;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  ++revision_;
+  return true;
 }
 
 bool Pipeline::recheckLoopClosures() {
@@ -97,7 +141,7 @@ bool Pipeline::recheckLoopClosures() {
       worst = c;
     }
   }
-  if (worst == g.numConstraints()) return false;
+  if (worst == g.numConstraints()) return readmitRejected();
   // Only the worst: one wrong loop closure inflates the residuals of right ones near it.
   toro::PoseGraph without;
   for (const toro::Node& n : g.nodes()) without.addNode(n.id, n.pose);
@@ -111,7 +155,7 @@ bool Pipeline::recheckLoopClosures() {
   ++counters_.loop_closures_rejected;
   ++counters_.loop_closures_refused;
   rejected_.push_back(RejectedLoopClosure{removed, ros::Time(), worst_chi2});
-  refuse("loop closure: failed the chi-square gate on re-check",
+  refuse(kRecheckReason,
          "loop closure " + std::to_string(removed.from) + " -> " + std::to_string(removed.to) + " removed: chi2 " +
              std::to_string(worst_chi2) + " after a full round exceeds " + std::to_string(gate_threshold_));
   return true;

@@ -3,7 +3,7 @@
 // keyframe), once clean and once with 5 % extra loop closures between unrelated poses (seeded),
 // gated at 0.99, and once more with them ungated.  The final error (g2o chi2 of the dataset's own
 // constraints at the corrected poses, after the same final passes as toro_offline) must stay
-// within 10 % of the clean run's, and the rejected set must hold most of the injected ones.
+// within 10 % of the clean run's (gated too), and the rejected set must hold the injected ones.
 // The wall times printed include the gate's copy of the optimiser per loop closure.
 #include <gtest/gtest.h>
 
@@ -164,14 +164,16 @@ TEST(LoopClosureGate, Sphere2500WithinTenPercentOfTheCleanRun) {
 
 // parking-garage declares covariances about 1e4 times its residuals (chi2 1.6 over ~37,000
 // residual components): with them as declared, 100 m of wrong loop closure is "plausible" and the
-// gate cannot work.  With the variance factor 5e-4 it rejects every injected one, but also right
-// ones (84 of ~4,600 in the clean run, ~480 with the injected ones: a sharp threshold on a scale
-// that is a guess), and the final error (2.10 against 1.68 at the time of writing) stays within
-// 30 % of the clean run's, not 10 %: the 10 % target is NOT met on this dataset.
-TEST(LoopClosureGate, ParkingGarageWithAVarianceFactor) {
+// gate cannot work.  With the variance factor 5e-4 it catches every injected one; the right ones
+// it rejects while an undetected wrong one still bends the map are re-admitted once the re-check
+// has removed it (11 right ones stay rejected in the clean run).  Measured at the time of
+// writing: clean 1.582, with the injected ones 1.704 (+7.7 %).  The factor is a scale the user
+// must know (2e-4: +6.8 %; 1e-3: one injected one survives and the error is 2000x), see
+// loop_closure_gate_variance_factor in config/map_corrector.yaml.
+TEST(LoopClosureGate, ParkingGarageWithAVarianceFactorWithinTenPercent) {
   const Outcome o = runDataset("parking-garage.g2o", 5e-4);
-  EXPECT_LE(o.dirty.chi2, 1.30 * o.clean.chi2);
-  EXPECT_GE(o.caught, o.injected * 9 / 10);
+  EXPECT_LE(o.dirty.chi2, 1.10 * o.clean.chi2);
+  EXPECT_EQ(o.caught, o.injected);
   EXPECT_LT(o.dirty.chi2, 1e-3 * o.ungated.chi2);
 }
 

@@ -135,6 +135,50 @@ TEST(PipelineGate, RejectedLoopClosuresAreSavedAndLoaded) {
   std::remove(sidecarPath(path).c_str());
 }
 
+// A right loop closure rejected earlier (while a wrong one bent the map, say) is applied again
+// after a full round once the map agrees with it; a wrong one stays rejected.  Set up directly:
+// the corrected map of the square (held by its right loop closure) saved with a second, slightly
+// different measurement of that loop closure and a wrong one on the rejected list.
+TEST(PipelineGate, RejectedLoopClosureTheMapAgreesWithIsReadmittedAfterARound) {
+  const DriftScenario s = makeDriftingSquare();
+  const std::size_t last = s.odometry.size() - 1;
+  Pipeline p(gated());
+  feed(p, s, 0, last + 1);
+  p.handleLoopClosure(trueLoopClosure(s, 0, 80));
+  p.optimize(20, "full");
+  ASSERT_EQ(p.status().counters.loop_closures_applied, 1u);
+  const std::string path = "/tmp/toro_gate_readmit_" + std::to_string(::getpid()) + ".g2o";
+  ASSERT_EQ(p.saveGraph(path), "");
+  Sidecar side = readSidecar(sidecarPath(path));
+  ASSERT_EQ(side.loop_closures.size(), 1u);
+  toro::Constraint again = p.graph().constraints()[side.loop_closures[0]];
+  again.measurement = toro::Pose3::fromRollPitchYaw(0.01, 0, 0, 0, 0, 0) * again.measurement;
+  side.rejected.push_back(RejectedLoopClosure{again, ros::Time(150.0), 99.0});
+  const LoopClosure wrong_msg = wrongLoopClosure(p);
+  toro::Constraint wrong{p.keyframes().records().front().id, p.keyframes().newest().id,
+                         poseFromMsg(wrong_msg.from_T_to), again.information};
+  side.rejected.push_back(RejectedLoopClosure{wrong, ros::Time(), 99.0});  // as rejected on re-check
+  writeSidecar(sidecarPath(path), side);
+
+  Pipeline q(gated());
+  ASSERT_EQ(q.loadGraph(path), "");
+  ASSERT_EQ(q.rejectedLoopClosures().size(), 2u);
+  const std::size_t constraints = q.graph().numConstraints();
+  EXPECT_TRUE(q.optimize(5, "full").success);
+  ASSERT_EQ(q.rejectedLoopClosures().size(), 1u);
+  EXPECT_EQ(q.rejectedLoopClosures()[0].constraint.measurement.translation().norm(), 0.0);  // the wrong one
+  EXPECT_EQ(q.graph().numConstraints(), constraints + 1);
+  const PipelineCounters& c = q.status().counters;
+  EXPECT_EQ(c.loop_closures_readmitted, 1u);
+  const auto snap = q.makeSnapshot();
+  std::size_t loops = 0;
+  for (const SnapshotEdge& e : snap->edges) loops += e.loop_closure;
+  EXPECT_EQ(loops, 2u);
+  EXPECT_EQ(snap->rejected_edges.size(), 1u);
+  std::remove(path.c_str());
+  std::remove(sidecarPath(path).c_str());
+}
+
 TEST(PipelineGate, InvalidConfidenceOrVarianceFactorIsRefused) {
   for (double c : {-0.1, 1.0, 1.5}) {
     PipelineOptions o = gated();

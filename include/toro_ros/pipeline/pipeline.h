@@ -187,8 +187,10 @@ class Pipeline {
   void settleGate();
   void rejectCandidate(double chi2);
   // After a full round: the accepted loop closure with the largest chi2 is removed if it fails the
-  // gate.  Returns true if one was removed.
+  // gate.  Returns true if one was removed or (when none was) rejected ones were re-admitted.
   bool recheckLoopClosures();
+  // Then: rejected loop closures the map now agrees with are applied again.  True if any were.
+  bool readmitRejected();
 
   PipelineOptions options_;
   WarningSink warn_;
