@@ -3,6 +3,7 @@
 // snapshot readers on other threads while the worker applies messages and optimises.
 #include <atomic>
 #include <chrono>
+#include <cstdio>
 #include <future>
 #include <stdexcept>
 #include <thread>
@@ -187,6 +188,46 @@ TEST(PipelineWorker, TimeoutAndThrowingCommandsLeaveTheWorkerRunning) {
   ASSERT_EQ(errors.texts.size(), 1u);
   EXPECT_NE(errors.texts[0].find("boom"), std::string::npos);
   EXPECT_EQ(status(worker).counters.resets, 1u);  // still answering
+}
+
+// A huge burst: 60 s of 1 kHz odometry and 50 Hz loop closures pushed as fast as a thread can,
+// into the node's default queue bound.  Every message is either taken by the pipeline (applied or
+// refused with a reason) or dropped at the queue and counted; the queue never exceeds its bound.
+TEST(PipelineWorker, BurstBeyondTheQueueIsAccountedFor) {
+  constexpr std::size_t kCapacity = 2000;
+  PipelineOptions o = options();
+  o.keyframer.distance_m = 0.25;
+  PipelineWorker worker(std::make_unique<Pipeline>(o), kCapacity, nullptr);
+  std::size_t sent = 0, max_queue = 0;
+  toro::Pose3 pose;
+  const toro::Pose3 step = toro::Pose3::fromRollPitchYaw(0.001, 0, 0, 0, 0, 0.0001);
+  for (int i = 1; i <= 60000; ++i) {
+    pose = pose * step;
+    const ros::Time t(100.0 + 0.001 * i);
+    worker.push(message(toro_ros::testing::odometryMsg(t, pose)));
+    ++sent;
+    if (i % 20 == 0 && i > 2000) {
+      LoopClosure lc;
+      lc.header.stamp = t;
+      lc.stamp_from = ros::Time(100.0 + 0.001 * (i - 2000));
+      lc.stamp_to = t;
+      lc.id_from = lc.id_to = -1;
+      lc.from_T_to.orientation.w = 1.0;
+      worker.push(message(lc));
+      ++sent;
+    }
+    max_queue = std::max(max_queue, worker.queueLength());
+  }
+  const PipelineStatus s = status(worker);
+  const PipelineCounters& c = s.counters;
+  std::printf("burst: %zu sent, %lu dropped at the queue, %lu odometry and %lu loop closures taken, max queue %zu\n",
+              sent, static_cast<unsigned long>(worker.dropped()), static_cast<unsigned long>(c.odometry_messages),
+              static_cast<unsigned long>(c.loop_closures_received), max_queue);
+  EXPECT_EQ(c.odometry_messages + c.loop_closures_received + worker.dropped(), sent);
+  EXPECT_LE(max_queue, kCapacity);
+  EXPECT_GT(worker.dropped(), 0u);  // the burst did outrun the worker
+  // What was taken is accounted for by the pipeline too.
+  EXPECT_EQ(c.loop_closures_applied + c.loop_closures_refused + s.pending_loop_closures, c.loop_closures_received);
 }
 
 TEST(PipelineWorker, PipelineIsOnlyHandedOutAfterStop) {

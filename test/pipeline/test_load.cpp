@@ -2,7 +2,7 @@
 // Pipeline the way the node's worker does (message, then the scheduled optimisation).  Checks that
 // every message is accounted for (applied, or refused under a reason), that the pending list stays
 // within its bound and that memory grows no faster than the graph.  Sim time: TORO_LOAD_SIM_SEC
-// (default 10 s here; bench/load_results.md has the full 60 s run and its figures).
+// (default 60 s, as the issue asks; bench/load_results.md has the figures).
 #include <unistd.h>
 #include <cmath>
 #include <cstdint>
@@ -43,7 +43,7 @@ double residentMiB() {
 
 double simSeconds() {
   const char* env = std::getenv("TORO_LOAD_SIM_SEC");
-  return env != nullptr ? std::atof(env) : 10.0;
+  return env != nullptr ? std::atof(env) : 60.0;
 }
 
 // A circle of radius 10 m at 1 m/s; odometry over-reads distance by 1 %.
