@@ -54,6 +54,17 @@ class ParamReader {
         "a string");
   }
 
+  // An enumeration given as one of its names (`choices` lists them for the error).
+  template <class E, class Parse>
+  void readChoice(const char* key, E& v, Parse parse, const char* choices) {
+    std::string text = toString(v);
+    read(key, text);
+    if (auto parsed = parse(text))
+      v = *parsed;
+    else
+      report_->errors.push_back(std::string(key) + ": expected " + choices + ", got '" + text + "'");
+  }
+
   void finish() {
     if (params_.getType() != XmlRpc::XmlRpcValue::TypeStruct) return;
     for (auto it = params_.begin(); it != params_.end(); ++it)
@@ -81,17 +92,12 @@ class ParamReader {
   std::set<std::string> known_;
 };
 
-void readPipeline(ParamReader& r, PipelineOptions& p, OptionsReport* report) {
+void readPipeline(ParamReader& r, PipelineOptions& p) {
   r.read("keyframe_distance_m", p.keyframer.distance_m);
   r.read("keyframe_angle_rad", p.keyframer.angle_rad);
   r.read("keyframe_interval_sec", p.keyframer.interval_sec);
-  std::string mode = toString(p.keyframer.covariance_mode);
-  r.read("odometry_covariance_mode", mode);
-  if (auto m = odometryCovarianceModeFromString(mode))
-    p.keyframer.covariance_mode = *m;
-  else
-    report->errors.push_back("odometry_covariance_mode: expected difference, latest or default, got '" +
-                             mode + "'");
+  r.readChoice("odometry_covariance_mode", p.keyframer.covariance_mode, odometryCovarianceModeFromString,
+               "difference, latest or default");
   r.read("odometry_default_translation_stddev_m", p.keyframer.default_stddev.translation_m);
   r.read("odometry_default_rotation_stddev_rad", p.keyframer.default_stddev.rotation_rad);
   r.read("loop_closure_stamp_tolerance_sec", p.matcher.stamp_tolerance_sec);
@@ -110,12 +116,7 @@ void readPipeline(ParamReader& r, PipelineOptions& p, OptionsReport* report) {
   r.read("loop_closure_gate_variance_factor", p.loop_closure_gate_variance_factor);
   r.read("autosave_path", p.persistence.autosave_path);
   r.read("autosave_period_sec", p.persistence.autosave_period_sec);
-  std::string link = toString(p.persistence.resume_link);
-  r.read("resume_link", link);
-  if (auto l = resumeLinkFromString(link))
-    p.persistence.resume_link = *l;
-  else
-    report->errors.push_back("resume_link: expected continue or last_pose, got '" + link + "'");
+  r.readChoice("resume_link", p.persistence.resume_link, resumeLinkFromString, "continue or last_pose");
   r.read("resume_link_translation_stddev_m", p.persistence.resume_link_stddev.translation_m);
   r.read("resume_link_rotation_stddev_rad", p.persistence.resume_link_stddev.rotation_rad);
 }
@@ -151,7 +152,7 @@ NodeOptions loadNodeOptions(const XmlRpc::XmlRpcValue& params, OptionsReport* re
   r.read("queue_size", o.queue_size);
   r.read("service_timeout_sec", o.service_timeout_sec);
   r.read("load_path", o.load_path);
-  readPipeline(r, o.pipeline, report);
+  readPipeline(r, o.pipeline);
   r.read("marker_node_scale_m", o.markers.node_scale_m);
   r.read("marker_edge_width_m", o.markers.edge_width_m);
   r.read("marker_loop_closure_chi2_red", o.markers.loop_closure_chi2_red);

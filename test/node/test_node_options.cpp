@@ -76,6 +76,19 @@ TEST(NodeOptions, WrongTypesAndInvalidValuesAreErrorsNamingTheKey) {
   EXPECT_NE(report.errors[0].find("queue_size"), std::string::npos);
   EXPECT_NE(report.errors[1].find("odometry_covariance_mode"), std::string::npos);
 
+  XmlRpc::XmlRpcValue bad_link;
+  bad_link["resume_link"] = std::string("sideways");
+  bad_link["autosave_period_sec"] = 0.0;
+  OptionsReport r1;
+  loadNodeOptions(bad_link, &r1);
+  ASSERT_EQ(r1.errors.size(), 1u);  // validation runs only once the keys themselves are readable
+  EXPECT_NE(r1.errors[0].find("resume_link: expected continue or last_pose, got 'sideways'"), std::string::npos);
+  bad_link["resume_link"] = std::string("last_pose");
+  OptionsReport r3;
+  EXPECT_EQ(loadNodeOptions(bad_link, &r3).pipeline.persistence.resume_link, ResumeLink::kLastPose);
+  ASSERT_EQ(r3.errors.size(), 1u);
+  EXPECT_NE(r3.errors[0].find("autosave_period_sec must be > 0"), std::string::npos) << r3.errors[0];
+
   XmlRpc::XmlRpcValue bad_range;
   bad_range["keyframe_angle_rad"] = -1.0;
   OptionsReport r2;
