@@ -7,7 +7,7 @@
 #            otherwise the pipeline tests the worker runs (test_pipeline, test_load, test_bad_input).
 #            The node's rostest is not run under TSan: it is not clean there, for reasons outside
 #            our code (measured; bench/ci_timing.md):
-#            - node and client report ~2,700 lock-order inversions and ~40 data races whose frames
+#            - node and client report ~2,500 lock-order inversions and ~40 data races whose frames
 #              lie in roscpp and log4cxx (TransportTCP::read/write, Connection::addDropListener,
 #              write, writeTransport and destructor, TopicManager::lookupPublication, PollManager):
 #              these libraries are not instrumented, so TSan sees only the halves of their
