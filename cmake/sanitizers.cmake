@@ -12,13 +12,3 @@ elseif(TORO_SANITIZER STREQUAL "thread")
 elseif(NOT TORO_SANITIZER STREQUAL "")
   message(FATAL_ERROR "TORO_SANITIZER must be empty, 'address' or 'thread', not '${TORO_SANITIZER}'")
 endif()
-# Extra compile flags for the shared libraries only (appended after the build type's flags, so they
-# win).  scripts/sanitize.sh builds everything at -O1 (half the compile time of -O2 under the
-# sanitizers) but the libraries at -O2: they hold the numerics the tests spend their time in, and at
-# -O1 GCC leaves Eigen's small quaternion/matrix functions out of line, which made
-# test_loop_closure_gate ~100x slower than in Release (bench/ci_timing.md).
-set(TORO_SANITIZER_LIBRARY_FLAGS "" CACHE STRING "Extra compile flags for the shared libraries (e.g. -O2)")
-if(TORO_SANITIZER_LIBRARY_FLAGS)
-  separate_arguments(toro_sanitizer_library_flags UNIX_COMMAND "${TORO_SANITIZER_LIBRARY_FLAGS}")
-  add_compile_options("$<$<STREQUAL:$<TARGET_PROPERTY:TYPE>,SHARED_LIBRARY>:${toro_sanitizer_library_flags}>")
-endif()

@@ -25,19 +25,18 @@
 # Suppressions (third-party code only, one comment per entry): test/sanitizers/*.supp.
 #
 # Cost (bench/ci_timing.md): compiling is most of it, so the builds are made for build time:
-# -O1 (about half the compile time of -O2 under the sanitizers) except the shared libraries at -O2
-# (they hold the numerics the tests spend their time in; at -O1 test_loop_closure_gate alone took
-# ~6 min), -g1 (line tables: enough for symbolised stack traces, much smaller objects than -g),
-# and only the targets the tests need (no benchmarks, no tool that no test runs).
+# -O1 (about half the compile time of -O2 under the sanitizers; the libraries at -O2 made the
+# slowest test, test_loop_closure_gate, only ~20 % faster, which the longer build ate up), -g1 (line
+# tables: enough for symbolised stack traces, a third of the object size of -g), and only the
+# targets the tests need (no benchmarks, no tool that no test runs).
 set -euo pipefail
 
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 WHICH="${1:-all}"
 export PYENV_VERSION=system ROS_HOSTNAME=localhost
-# Sanitizer builds: -O1 and line tables only, libraries -O2 (see above); NDEBUG as in the Release
-# build the same tests run in.
+# Sanitizer builds: -O1 and line tables only (see above); NDEBUG as in the Release build the same
+# tests run in.
 SANITIZER_FLAGS="-O1 -g1 -DNDEBUG"
-SANITIZER_LIBRARY_FLAGS="-O2"
 
 absolute() { [[ "$1" = /* ]] && printf '%s' "$1" || printf '%s/%s' "${REPO_ROOT}" "$1"; }
 
@@ -45,7 +44,7 @@ absolute() { [[ "$1" = /* ]] && printf '%s' "$1" || printf '%s/%s' "${REPO_ROOT}
 configureAndBuild() {
   mkdir -p "$1"
   cmake -S "${REPO_ROOT}" -B "$1" -DTORO_SANITIZER="$2" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="${SANITIZER_FLAGS}" -DCMAKE_C_FLAGS_RELWITHDEBINFO="${SANITIZER_FLAGS}" -DTORO_SANITIZER_LIBRARY_FLAGS="${SANITIZER_LIBRARY_FLAGS}" \
+    -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="${SANITIZER_FLAGS}" -DCMAKE_C_FLAGS_RELWITHDEBINFO="${SANITIZER_FLAGS}" \
     -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 >"$1/sanitize-configure.log" 2>&1 </dev/null ||
     { tail -n 40 "$1/sanitize-configure.log" >&2; return 1; }
   TORO_BUILD_DIR="$1" TORO_BUILD_TYPE=RelWithDebInfo TORO_BUILD_TARGETS="$3" \
