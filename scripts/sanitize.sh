@@ -3,8 +3,8 @@
 #   address: the whole test suite (every ctest test, rostests included) in an ASan+UBSan build
 #            (TORO_ASAN_BUILD_DIR, default build-asan);
 #   thread:  the worker thread tests in a TSan build (TORO_TSAN_BUILD_DIR, default build-tsan):
-#            test_pipeline_worker (the node's worker thread without ROS transport) when it exists,
-#            otherwise the pipeline tests the worker runs (test_pipeline, test_load, test_bad_input).
+#            test_pipeline_worker (the node's worker thread without ROS transport: producers,
+#            service commands and snapshot readers on other threads while it applies and optimises).
 #            The node's rostest is not run under TSan: it is not clean there, for reasons outside
 #            our code (measured; bench/ci_timing.md):
 #            - node and client report ~2,500 lock-order inversions and ~40 data races whose frames
@@ -90,13 +90,9 @@ runAddress() {
 runThread() {
   local build start targets pattern
   build="$(absolute "${TORO_TSAN_BUILD_DIR:-build-tsan}")"
-  if [[ -f "${REPO_ROOT}/test/node/test_pipeline_worker.cpp" ]]; then
-    targets="test_pipeline_worker"
-    pattern='test_pipeline_worker$'
-  else
-    targets="test_pipeline test_load test_bad_input"
-    pattern='test_pipeline$|test_load$|test_bad_input$'
-  fi
+  # The worker thread tests (the other gtests run no threads of ours).
+  targets="test_pipeline_worker"
+  pattern='test_pipeline_worker$'
   if [[ "${TORO_TSAN_ROSTEST:-0}" != 0 ]]; then
     targets="${targets} toro_ros_generate_messages map_corrector_node map_corrector"
     pattern="${pattern}|rostest_test_node_map_corrector"
