@@ -77,6 +77,9 @@ std::optional<GetStatus::Response> status() {
 class NodeProcess {
  public:
   explicit NodeProcess(const std::string& log) {
+    // Everything the child needs is made before fork(): this process has threads (the spinner),
+    // so the child may only make async-signal-safe calls (no allocation) until exec.
+    const std::string name = std::string("__name:=") + (kNodeName + 1);
     pid_ = fork();
     if (pid_ == 0) {
       const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
@@ -84,7 +87,6 @@ class NodeProcess {
         dup2(fd, STDOUT_FILENO);
         dup2(fd, STDERR_FILENO);
       }
-      const std::string name = std::string("__name:=") + (kNodeName + 1);
       execl(TORO_NODE_BIN, TORO_NODE_BIN, name.c_str(), static_cast<char*>(nullptr));
       _exit(127);
     }
