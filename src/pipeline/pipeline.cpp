@@ -163,6 +163,13 @@ void Pipeline::addKeyframe(const OdometrySample& sample) {
   // After a load the reference keyframe's covariance is unknown (NaN): defaults, not a refusal.
   const bool reference_known = !keyframer_.last() || keyframer_.last()->covariance.allFinite();
   const std::optional<OdometryStep> step = keyframer_.accept(sample);
+  if (step && step->information.used_default && reference_known &&
+      options_.keyframer.covariance_mode != OdometryCovarianceMode::kDefault)
+    ++counters_.refused_by_reason["odometry: covariance unusable, default used"];
+  appendKeyframe(sample, step);
+}
+
+void Pipeline::appendKeyframe(const OdometrySample& sample, const std::optional<OdometryStep>& step) {
   const toro::NodeId id = next_id_++;
   // A new keyframe continues from the corrected previous one, so the odometry constraint starts
   // with zero residual and the correction made so far carries over.
@@ -175,9 +182,6 @@ void Pipeline::addKeyframe(const OdometrySample& sample) {
   if (last_full_stamp_.isZero()) last_full_stamp_ = sample.stamp;
   ++keyframes_since_full_;
   if (!step) return;
-  if (step->information.used_default && reference_known &&
-      options_.keyframer.covariance_mode != OdometryCovarianceMode::kDefault)
-    ++counters_.refused_by_reason["odometry: covariance unusable, default used"];
   toro::Constraint c{previous, id, step->previous_T_current, step->information.information};
   optimizer_.addConstraint(c);  // endpoints exist and the information is SPD by construction
   is_loop_closure_.push_back(false);

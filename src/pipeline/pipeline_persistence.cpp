@@ -136,16 +136,12 @@ bool Pipeline::resumeWith(const OdometrySample& sample) {
   resume_after_.reset();
   if (options_.persistence.resume_link == ResumeLink::kContinue) return true;  // keyframer goes on
   // kLastPose: the new odometry frame starts where the saved run ended.  The sample becomes a
-  // keyframe at the newest saved pose, and later keyframes step from it in the new frame.
-  const toro::NodeId previous = keyframes_.newest().id, id = next_id_++;
-  optimizer_.addNode(id, optimizer_.graph().pose(previous));
-  keyframes_.append(KeyframeRecord{id, sample.stamp, sample.odom_T_base});
-  optimizer_.addConstraint(toro::Constraint{previous, id, toro::Pose3(),
-                                            defaultInformation(options_.persistence.resume_link_stddev)});
-  is_loop_closure_.push_back(false);
+  // keyframe at the newest saved pose (an identity step), and later keyframes step from it in the
+  // new frame.
+  InformationResult link;
+  link.information = defaultInformation(options_.persistence.resume_link_stddev);
   keyframer_.setLast(sample);
-  ++keyframes_since_full_;
-  ++revision_;
+  appendKeyframe(sample, OdometryStep{toro::Pose3(), link});
   return true;
 }
 

@@ -165,6 +165,8 @@ class Pipeline {
 
  private:
   void addKeyframe(const OdometrySample& sample);
+  // Makes `sample` the newest keyframe; with a step, joined to the previous newest by it.
+  void appendKeyframe(const OdometrySample& sample, const std::optional<OdometryStep>& step);
   // The first odometry after a load (pipeline_persistence.cpp): false if `sample` is refused.
   bool resumeWith(const OdometrySample& sample);
   void autosaveIfDue(const ros::Time& stamp);
