@@ -101,10 +101,12 @@ MapCorrectorNode::~MapCorrectorNode() {
   if (service_spinner_) service_spinner_->stop();
   if (tf_spinner_) tf_spinner_->stop();
   worker_->stop();
-  // The worker is gone: this thread may touch the pipeline and save what was applied.
+  // The worker is gone: this thread may touch the pipeline and save what was applied.  autosave()
+  // writes only if something changed since the last save (a failure is logged by the pipeline).
   const std::string error = worker_->pipeline().autosave();
   if (!options_.pipeline.persistence.autosave_path.empty() && error.empty())
-    ROS_INFO_STREAM("map corrector: graph saved to " << options_.pipeline.persistence.autosave_path);
+    ROS_INFO_STREAM("map corrector: the graph in " << options_.pipeline.persistence.autosave_path
+                                                   << " is up to date");
 }
 
 void MapCorrectorNode::subscribeInputs() {
