@@ -43,7 +43,10 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
     : nh_(nh),
       private_nh_(private_nh),
       options_(loadOptions(private_nh, &unknown_parameters_)),
+      graph_directory_(options_.graph_directory),
       diagnostics_(nh, private_nh) {
+  ROS_INFO_STREAM("map corrector: " << graph_directory_.resolveOperatorPaths(
+                      &options_.load_path, &options_.pipeline.persistence.autosave_path));
   auto pipeline = std::make_unique<Pipeline>(
       options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); });
   // Before the worker takes the pipeline; throws, stopping the node, if load_path exists but
