@@ -80,7 +80,8 @@ FileDescriptor::~FileDescriptor() {
   if (fd_ >= 0) ::close(fd_);
 }
 
-GraphFileRef::GraphFileRef(std::string path) : name_(path), display_path_(std::move(path)) {}
+GraphFileRef::GraphFileRef(std::string path, bool quote_content)
+    : name_(path), display_path_(std::move(path)), quote_content_(quote_content) {}
 
 GraphFileRef::GraphFileRef(std::shared_ptr<const FileDescriptor> directory, std::string name, std::string display_path)
     : directory_(std::move(directory)), name_(std::move(name)), display_path_(std::move(display_path)) {}
@@ -95,7 +96,7 @@ GraphFileRef GraphFileRef::sidecar() const {
 int GraphFileRef::directoryFd() const { return directory_ ? directory_->get() : AT_FDCWD; }
 
 std::string GraphFileRef::describe(const toro::ParseError& error) const {
-  return confined() ? error.redactedWhat() : error.what();
+  return quote_content_ ? error.what() : error.redactedWhat();
 }
 
 bool fileExists(const GraphFileRef& file) {

@@ -159,10 +159,11 @@ void Pipeline::autosaveIfDue(const ros::Time& stamp) {
 
 namespace {
 
-std::string resume(Pipeline& pipeline, const std::string& path) {
+std::string resume(Pipeline& pipeline, const std::string& path, bool quote_content) {
   if (path.empty()) return "";
-  if (!fileExists(GraphFileRef(path))) return "load_path " + path + " does not exist yet: starting a new map";
-  const std::string error = pipeline.loadGraph(path);
+  const GraphFileRef file(path, quote_content);
+  if (!fileExists(file)) return "load_path " + path + " does not exist yet: starting a new map";
+  const std::string error = pipeline.loadGraph(file);
   if (!error.empty()) throw std::runtime_error("load_path: " + error);
   const KeyframeIndex& k = pipeline.keyframes();
   return "resumed " + path + ": " + std::to_string(k.size()) + " keyframes, " +
@@ -173,12 +174,12 @@ std::string resume(Pipeline& pipeline, const std::string& path) {
 
 }  // namespace
 
-std::string loadOnStart(Pipeline& pipeline, const std::string& path) {
-  const std::string resumed = resume(pipeline, path);
+std::string loadOnStart(Pipeline& pipeline, const std::string& path, bool quote_content) {
+  const std::string resumed = resume(pipeline, path, quote_content);
   const std::string& autosave = pipeline.options().persistence.autosave_path;
   // Unless it is the file just loaded (a graph, then).
   if (!autosave.empty() && !(autosave == path && !pipeline.graph().empty())) {
-    const std::string why = checkReplaceable(GraphFileRef(autosave));
+    const std::string why = checkReplaceable(GraphFileRef(autosave, quote_content));
     if (!why.empty()) throw std::runtime_error("autosave_path: refusing to replace it: " + why);
   }
   return resumed;

@@ -422,4 +422,17 @@ TEST(GraphDirectory, StartUpRefusesAnAutosavePathHoldingSomethingElse) {
   options.persistence.autosave_path = (t.outside / "new.g2o").string();
   Pipeline q(options);
   EXPECT_EQ(loadOnStart(q, ""), "");
+  // A load_path that is not a graph stops the start; the node (whose log anyone on the network
+  // reads on /rosout) asks for messages without the file's content, toro_offline keeps them.
+  put(t.outside / "script.g2o", "./install.sh --force\n");
+  for (const bool quote : {true, false}) {
+    try {
+      loadOnStart(q, (t.outside / "script.g2o").string(), quote);
+      FAIL() << "a load_path that is not a graph was accepted";
+    } catch (const std::runtime_error& e) {
+      EXPECT_TRUE(contains(e.what(), "load_path: " + (t.outside / "script.g2o").string() + ":1: ")) << e.what();
+      EXPECT_EQ(contains(e.what(), "install"), quote) << e.what();
+    }
+  }
+  EXPECT_TRUE(q.graph().empty());
 }

@@ -36,8 +36,10 @@ class FileDescriptor {
 
 class GraphFileRef {
  public:
-  // An operator's path (relative ones from the working directory).
-  explicit GraphFileRef(std::string path);
+  // An operator's path (relative ones from the working directory).  `quote_content` false: error
+  // messages about it do not quote it either (the node's log goes to /rosout, which anyone on the
+  // ROS network reads).
+  explicit GraphFileRef(std::string path, bool quote_content = true);
   // `name` (one path component) in the open `directory`; `display_path` names it in messages.
   GraphFileRef(std::shared_ptr<const FileDescriptor> directory, std::string name, std::string display_path);
 
@@ -49,13 +51,15 @@ class GraphFileRef {
   int directoryFd() const;
   const std::string& name() const { return name_; }
   const std::string& displayPath() const { return display_path_; }
-  // The message of a ParseError about this file: without the file's content when confined().
+  // The message of a ParseError about this file: without the file's content when confined() or
+  // made with quote_content false.
   std::string describe(const toro::ParseError& error) const;
 
  private:
   std::shared_ptr<const FileDescriptor> directory_;
   std::string name_;
   std::string display_path_;
+  bool quote_content_ = false;
 };
 
 // Whether anything (a symbolic link too, dangling or not) is at the file's name.

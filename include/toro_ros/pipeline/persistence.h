@@ -48,7 +48,8 @@ std::string checkReplaceable(const GraphFileRef& graph);
 // is also the load_path), else what was resumed.  Throws std::runtime_error when the file exists
 // but cannot be loaded: the owner must stop rather than start empty and autosave over it; and
 // when the pipeline's autosave_path holds something checkReplaceable refuses (a typo in the path
-// must not make the autosave destroy another file).
-std::string loadOnStart(Pipeline& pipeline, const std::string& path);
+// must not make the autosave destroy another file).  `quote_content` false: the messages quote
+// neither file (see GraphFileRef).
+std::string loadOnStart(Pipeline& pipeline, const std::string& path, bool quote_content = true);
 
 }  // namespace toro_ros
