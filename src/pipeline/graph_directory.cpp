@@ -98,11 +98,13 @@ std::string GraphDirectory::check(const std::string& name, fs::path* root, fs::p
     const fs::path lexical = joined.lexically_normal();
     if (inside(lexical, fs::path(path_)) || inside(lexical, *root))
       return shown + " leads outside graph_directory " + path_ + " through a symbolic link: refused";
-    return shown + " is outside graph_directory " + path_ + ": refused (give a name relative to it; '..' may not leave it)";
+    return shown + " is outside graph_directory " + path_ +
+           ": refused (give a name relative to it; '..' may not leave it)";
   }
   if (!hasGraphExtension(given))
     return shown + " is not a graph file name: refused (.g2o, .graph or .toro; the format follows it)";
-  if (!hasGraphExtension(*resolved)) return shown + " is a symbolic link to a file without a graph extension: refused";
+  if (!hasGraphExtension(*resolved))
+    return shown + " is a symbolic link to a file without a graph extension: refused";
   // weakly_canonical keeps a link that leads to nothing as it is (it cannot resolve it).
   std::error_code ignored;  // a missing component is not a link
   fs::path prefix = *root;
@@ -128,12 +130,15 @@ ConfinedFile GraphDirectory::resolve(const std::string& name, bool for_save) con
   }
   std::error_code ec;
   if (fs::canonical(path_, ec) != root)
-    return refused(shown + ": graph_directory " + path_ + (ec ? " does not exist yet" : " changed while it was checked"));
+    return refused(shown + ": graph_directory " + path_ +
+                   (ec ? " does not exist yet" : " changed while it was checked"));
   // Open the directory that holds the file, one component at a time without following links:
   // `resolved` has none, so a link found now appeared after the check.
   const fs::path relative = resolved.lexically_relative(root);
-  auto directory = std::make_shared<const FileDescriptor>(::open(root.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
-  if (directory->get() < 0) return refused("cannot open graph_directory " + path_ + ": " + std::strerror(errno));
+  auto directory =
+      std::make_shared<const FileDescriptor>(::open(root.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
+  if (directory->get() < 0)
+    return refused("cannot open graph_directory " + path_ + ": " + std::strerror(errno));
   fs::path walked;
   for (const fs::path& part : relative.parent_path()) {
     walked /= part;
@@ -141,9 +146,11 @@ ConfinedFile GraphDirectory::resolve(const std::string& name, bool for_save) con
         ::openat(directory->get(), part.c_str(), O_RDONLY | O_DIRECTORY | O_NOFOLLOW | O_CLOEXEC));
     if (next->get() < 0) {
       const int err = errno;
-      if (err == ENOENT) return refused(shown + ": there is no directory " + walked.string() + " in graph_directory " + path_);
+      if (err == ENOENT)
+        return refused(shown + ": there is no directory " + walked.string() + " in graph_directory " + path_);
       if (err == ELOOP || err == ENOTDIR)
-        return refused(shown + ": " + walked.string() + " changed while it was checked (a link or not a directory now): refused");
+        return refused(shown + ": " + walked.string() +
+                       " changed while it was checked (a link or not a directory now): refused");
       return refused(shown + ": cannot open " + walked.string() + ": " + std::strerror(err));
     }
     directory = std::move(next);
@@ -171,7 +178,8 @@ std::string GraphDirectory::resolveOperatorPaths(std::string* load_path, std::st
     std::error_code no_link;  // is_symlink of a missing file reports ENOENT: not a link
     for (int hops = 0; !ec && hops < 40 && fs::is_symlink(resolved, no_link); ++hops) {
       const fs::path target = fs::read_symlink(resolved, ec);
-      if (!ec) resolved = fs::weakly_canonical(target.is_absolute() ? target : resolved.parent_path() / target, ec);
+      if (!ec)
+        resolved = fs::weakly_canonical(target.is_absolute() ? target : resolved.parent_path() / target, ec);
     }
     *p = (ec ? fs::absolute(given).lexically_normal() : resolved).string();
   };

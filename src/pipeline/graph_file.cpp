@@ -83,7 +83,8 @@ FileDescriptor::~FileDescriptor() {
 GraphFileRef::GraphFileRef(std::string path, bool quote_content)
     : name_(path), display_path_(std::move(path)), quote_content_(quote_content) {}
 
-GraphFileRef::GraphFileRef(std::shared_ptr<const FileDescriptor> directory, std::string name, std::string display_path)
+GraphFileRef::GraphFileRef(std::shared_ptr<const FileDescriptor> directory, std::string name,
+                           std::string display_path)
     : directory_(std::move(directory)), name_(std::move(name)), display_path_(std::move(display_path)) {}
 
 GraphFileRef GraphFileRef::sidecar() const {
@@ -112,7 +113,8 @@ FileDescriptor openForReading(const GraphFileRef& file) {
     const int err = errno;
     if (err == ELOOP && file.confined())
       throw toro::ParseError(file.displayPath(), 0, "is a symbolic link (not followed in graph_directory)");
-    throw toro::ParseError(file.displayPath(), 0, std::string("cannot open for reading: ") + std::strerror(err));
+    throw toro::ParseError(file.displayPath(), 0,
+                           std::string("cannot open for reading: ") + std::strerror(err));
   }
   struct stat st;
   if (::fstat(fd.get(), &st) != 0)
@@ -123,13 +125,15 @@ FileDescriptor openForReading(const GraphFileRef& file) {
   return fd;
 }
 
-toro::PoseGraph readGraphFile(const GraphFileRef& file, const toro::ReadOptions& options, toro::ReadReport* report) {
+toro::PoseGraph readGraphFile(const GraphFileRef& file, const toro::ReadOptions& options,
+                              toro::ReadReport* report) {
   const FileDescriptor fd = openForReading(file);
   FdStreamBuf buffer(fd.get());
   std::istream in(&buffer);
   toro::PoseGraph graph = toro::readGraph(in, file.displayPath(), options, report);
   if (buffer.error() != 0)
-    throw toro::ParseError(file.displayPath(), 0, std::string("read error: ") + std::strerror(buffer.error()));
+    throw toro::ParseError(file.displayPath(), 0,
+                           std::string("read error: ") + std::strerror(buffer.error()));
   return graph;
 }
 
@@ -182,8 +186,10 @@ void PendingFile::commit() {
   if (::renameat(dir, temporary_.c_str(), dir, file_.name().c_str()) != 0)
     throw fileError(file_, "cannot rename the temporary file over it", errno);
   committed_ = true;
-  const FileDescriptor parent(::openat(dir, parentOf(file_.name()).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
-  if (parent.get() < 0 || ::fsync(parent.get()) != 0) throw fileError(file_, "cannot sync its directory", errno);
+  const FileDescriptor parent(
+      ::openat(dir, parentOf(file_.name()).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
+  if (parent.get() < 0 || ::fsync(parent.get()) != 0)
+    throw fileError(file_, "cannot sync its directory", errno);
 }
 
 }  // namespace toro_ros

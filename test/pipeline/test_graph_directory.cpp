@@ -37,7 +37,9 @@ std::set<std::string> listing(const fs::path& dir) {
   return names;
 }
 
-bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
+bool contains(const std::string& text, const std::string& part) {
+  return text.find(part) != std::string::npos;
+}
 
 // A temporary tree: `root` is the graph directory (not created: the save creates it), `outside`
 // a sibling holding files the services must never touch.
@@ -123,8 +125,9 @@ TEST(GraphDirectory, AbsolutePathOutsideAndDotDotAreRefusedAndNothingIsWritten) 
   Mapped m;
   const GraphDirectory dir(t.root.string());
   fs::create_directories(t.root / "sub");
-  for (const std::string& name : {(t.outside / "x.g2o").string(), std::string("../outside/x.g2o"),
-                                 std::string("../x.g2o"), std::string("sub/../../x.g2o"), std::string("/etc/x.g2o")}) {
+  for (const std::string& name :
+       {(t.outside / "x.g2o").string(), std::string("../outside/x.g2o"), std::string("../x.g2o"),
+        std::string("sub/../../x.g2o"), std::string("/etc/x.g2o")}) {
     const ConfinedFile save = dir.forSave(name);
     EXPECT_FALSE(save.file) << name;
     EXPECT_TRUE(contains(save.error, "is outside graph_directory " + t.root.string())) << save.error;
@@ -154,7 +157,8 @@ TEST(GraphDirectory, SymbolicLinksLeadingOutAreRefusedForFilesAndDirectories) {
     EXPECT_FALSE(save.file) << name;
     EXPECT_TRUE(contains(save.error, "leads outside graph_directory")) << save.error;
     EXPECT_TRUE(contains(save.error, "symbolic link")) << save.error;
-    EXPECT_FALSE(contains(save.error, t.outside.string())) << "where the link leads is not told: " << save.error;
+    EXPECT_FALSE(contains(save.error, t.outside.string()))
+        << "where the link leads is not told: " << save.error;
     const ConfinedFile load = dir.forLoad(name);
     EXPECT_FALSE(load.file) << name;
     EXPECT_TRUE(contains(load.error, "leads outside graph_directory")) << load.error;
@@ -280,7 +284,8 @@ TEST(GraphDirectory, LoadOfEtcPasswdIsRefusedAndNoMessageHoldsItsContent) {
   const ConfinedFile copy = dir.forLoad("copy.g2o");
   ASSERT_TRUE(copy.file) << copy.error;
   const std::string error = m.pipeline.loadGraph(*copy.file);
-  EXPECT_TRUE(contains(error, (t.root / "copy.g2o").string() + ":1: the line does not start with a tag")) << error;
+  EXPECT_TRUE(contains(error, (t.root / "copy.g2o").string() + ":1: the line does not start with a tag"))
+      << error;
   expectNoContent(error);
   // The operator's own tools keep the excerpt (toro_optimize, toro_offline's load_path).
   EXPECT_TRUE(contains(m.pipeline.loadGraph((t.root / "copy.g2o").string()), "'" + pieces[0]));
@@ -317,8 +322,12 @@ TEST(GraphDirectory, OddNamesWorkAndEmptyOrControlCharacterNamesAreRefused) {
   Tree t;
   Mapped m;
   const GraphDirectory dir(t.root.string());
-  for (const char* name : {"map with spaces.g2o", "\xc3\xbcn\xc3\xaf" "c\xc3\xb8" "de.g2o", "-dash.toro",
-                                 "quote'\"$(touch x);`x`*?.g2o", "UPPER.G2O", "a..b.g2o", "..hidden.g2o"}) {
+  for (const char* name :
+       {"map with spaces.g2o",
+        "\xc3\xbcn\xc3\xaf"
+        "c\xc3\xb8"
+        "de.g2o",
+        "-dash.toro", "quote'\"$(touch x);`x`*?.g2o", "UPPER.G2O", "a..b.g2o", "..hidden.g2o"}) {
     const ConfinedFile save = dir.forSave(name);
     ASSERT_TRUE(save.file) << name << ": " << save.error;
     ASSERT_EQ(m.pipeline.saveGraph(*save.file), "") << name;
@@ -430,7 +439,8 @@ TEST(GraphDirectory, StartUpRefusesAnAutosavePathHoldingSomethingElse) {
       loadOnStart(q, (t.outside / "script.g2o").string(), quote);
       FAIL() << "a load_path that is not a graph was accepted";
     } catch (const std::runtime_error& e) {
-      EXPECT_TRUE(contains(e.what(), "load_path: " + (t.outside / "script.g2o").string() + ":1: ")) << e.what();
+      EXPECT_TRUE(contains(e.what(), "load_path: " + (t.outside / "script.g2o").string() + ":1: "))
+          << e.what();
       EXPECT_EQ(contains(e.what(), "install"), quote) << e.what();
     }
   }

@@ -57,7 +57,8 @@ class GraphDirectory {
 
  private:
   // Empty if `name` may be used (then *resolved is its file, below *root, both canonical), else why not.
-  std::string check(const std::string& name, std::filesystem::path* root, std::filesystem::path* resolved) const;
+  std::string check(const std::string& name, std::filesystem::path* root,
+                    std::filesystem::path* resolved) const;
   ConfinedFile resolve(const std::string& name, bool for_save) const;
   void create() const;
 
