@@ -19,8 +19,15 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr int kMaxRecheckRounds = 10;
-// The robust width adapts only once this many accepted loop closures give its percentile.
-constexpr std::size_t kMinLoopClosuresToAdaptWidth = 50;
+// The robust width adapts once this many accepted loop closures give it a median, after every loop
+// closure while fewer than kEarlyLoopClosures were applied (senders whose covariances are far too
+// large must be caught before wrong loop closures bend the map), then after full rounds.
+constexpr std::size_t kMinLoopClosuresToAdaptWidth = 5;
+constexpr std::size_t kEarlyLoopClosures = 200;
+// The width narrows to this many times the median arrival innovation of the accepted loop closures:
+// right ones' residuals are heavy-tailed (largest / median up to ~200 on real data), wrong ones lie
+// 100 to 1e5 times above the median.
+constexpr double kMedianWidthFactor = 250.0;
 
 // Seconds of wall time spent in `f`; reported only, never used to decide anything.
 template <class F>
@@ -265,6 +272,7 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
   ++revision_;
   ++counters_.loop_closures_applied;
   affected_pending_ = true;
+  if (counters_.loop_closures_applied <= kEarlyLoopClosures) adaptRobustWidth();
   ++loop_closures_since_full_;
 }
 
@@ -367,9 +375,11 @@ void Pipeline::adaptRobustWidth() {
   for (std::size_t c = 0; c < arrival.size(); ++c)
     if (is_loop_closure_[c] && arrival[c] >= 0.0 && weights[c] >= toro::kRejectedWeight) accepted.push_back(arrival[c]);
   if (accepted.size() < kMinLoopClosuresToAdaptWidth) return;
-  const auto top = accepted.begin() + static_cast<std::ptrdiff_t>(0.99 * static_cast<double>(accepted.size() - 1));
-  std::nth_element(accepted.begin(), top, accepted.end());
-  const double adapted = std::min(options_.robust.width, options_.robust.adaptive_width_factor * *top);
+  // The median, not a high percentile: robust to the few wrong ones accepted before the width
+  // could narrow, and meaningful from a handful of loop closures on.
+  const auto middle = accepted.begin() + static_cast<std::ptrdiff_t>(accepted.size() / 2);
+  std::nth_element(accepted.begin(), middle, accepted.end());
+  const double adapted = std::min(options_.robust.width, kMedianWidthFactor * *middle);
   // Only a clear change is worth it (each one re-weights every loop closure).
   if (!(adapted > 0.0) || (adapted > robust_width_ / 1.5 && adapted < robust_width_ * 1.5)) return;
   robust_width_ = adapted;
