@@ -1,6 +1,9 @@
 // The shipped config against the options loader: every key known, every known key documented,
 // unknown keys and wrong types reported.  No master needed.
+#include <cctype>
 #include <fstream>
+#include <iterator>
+#include <set>
 #include <sstream>
 
 #include <gtest/gtest.h>
@@ -95,4 +98,30 @@ TEST(NodeOptions, WrongTypesAndInvalidValuesAreErrorsNamingTheKey) {
   loadNodeOptions(bad_range, &r2);
   ASSERT_EQ(r2.errors.size(), 1u);
   EXPECT_NE(r2.errors[0].find("angle_rad"), std::string::npos);
+}
+
+// The message and service definitions document the node's interface in their comments: every
+// "~name" they mention must be a parameter, topic or service the node has (they once named
+// ~loop_closure/stamp_tolerance_sec and ~optimization/full_iterations, which never existed).
+TEST(NodeOptions, EveryPrivateNameInTheMessageAndServiceCommentsExists) {
+  std::set<std::string> names = knownParameterKeys();
+  for (const char* n : {"path", "graph_markers", "graph", "pose", "optimize", "pause", "resume", "reset",
+                        "save_graph", "load_graph", "get_status", "set_parameters"})
+    names.insert(n);
+  std::size_t mentioned = 0;
+  for (const char* file : {"msg/LoopClosure.msg", "msg/PoseGraph.msg", "msg/PoseGraphNode.msg", "msg/PoseGraphEdge.msg",
+                           "srv/Optimize.srv", "srv/GraphFile.srv", "srv/GetStatus.srv"}) {
+    std::ifstream in(std::string(TORO_SOURCE_DIR) + "/" + file);
+    ASSERT_TRUE(in.good()) << file;
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    for (std::size_t at = text.find('~'); at != std::string::npos; at = text.find('~', at + 1)) {
+      std::size_t end = at + 1;
+      while (end < text.size() && (std::isalnum(static_cast<unsigned char>(text[end])) || text[end] == '_' || text[end] == '/'))
+        ++end;
+      const std::string name = text.substr(at + 1, end - at - 1);
+      ++mentioned;
+      EXPECT_TRUE(names.count(name)) << file << " names ~" << name << ", which the node does not have";
+    }
+  }
+  EXPECT_GE(mentioned, 8u);
 }
