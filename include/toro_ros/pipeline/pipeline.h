@@ -159,6 +159,10 @@ class Pipeline {
   // The gate's chi2 threshold (infinity when the gate is off).
   double gateThreshold() const { return gate_threshold_; }
   const PipelineOptions& options() const { return options_; }
+  // Run-time tuning (pipeline_live_options.cpp): takes from `options` the values that are safe
+  // to change while running (keyframe thresholds, the optimisation schedule, the gate) and keeps
+  // the others.  Empty string on success; else why not, and nothing changed.
+  std::string applyLiveOptions(const PipelineOptions& options);
   // Changes whenever what a snapshot shows changes (keyframes, constraints, poses, counters of
   // refusals, resets); not for odometry that makes no keyframe.  Publishers compare it.
   std::uint64_t revision() const { return revision_; }

@@ -42,6 +42,7 @@ struct SnapshotEdge {
   std::size_t to_index = 0;
   bool loop_closure = false;
   double chi2 = 0.0;  // g2o chi2 of this constraint at the corrected poses (loop closures only)
+  double weight = 1.0;  // robust weight in [0, 1] the optimiser gives it (1: full information)
 };
 
 // A loop closure the chi-square gate refused (kept for the graph file, the markers and ~get_status).
