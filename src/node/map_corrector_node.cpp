@@ -57,7 +57,12 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
   if (!resumed.empty()) ROS_INFO_STREAM("map corrector: " << resumed);
   path_pub_ = private_nh_.advertise<nav_msgs::Path>(names::kPathTopic, 1, true);
   markers_pub_ = private_nh_.advertise<visualization_msgs::MarkerArray>(names::kMarkersTopic, 1, true);
-  graph_pub_ = private_nh_.advertise<PoseGraph>(names::kGraphTopic, 1, true);
+  // ~graph is built only while someone subscribes (about 500 bytes per keyframe: 10 MB and ~0.1 s
+  // of the worker at 20,000 keyframes, bench/node_results.md); a new subscriber gets the current
+  // graph within one visualisation period.
+  graph_pub_ = private_nh_.advertise<PoseGraph>(
+      names::kGraphTopic, 1, [this](const ros::SingleSubscriberPublisher&) { graph_pending_ = true; },
+      ros::SubscriberStatusCallback(), ros::VoidConstPtr(), true);
   pose_pub_ = private_nh_.advertise<geometry_msgs::PoseWithCovarianceStamped>(names::kPoseTopic, 10);
   // The observer publishes ~graph, so the publishers exist before the worker.
   worker_ = std::make_unique<PipelineWorker>(

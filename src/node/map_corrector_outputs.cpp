@@ -58,8 +58,10 @@ void MapCorrectorNode::onOdometryArrived(const nav_msgs::Odometry::ConstPtr& msg
 }
 
 void MapCorrectorNode::onSnapshot(const Pipeline& pipeline, const Snapshot& snapshot) {
-  // Commands such as ~get_status make snapshots too; the graph goes out only when it changed.
+  // Commands such as ~get_status make snapshots too; the graph goes out only when it changed, and
+  // only to subscribers (one that connects later sets graph_pending_: the timer flushes).
   if (graph_published_ && pipeline.revision() == graph_revision_) return;
+  if (graph_pub_.getNumSubscribers() == 0) return;
   const std::shared_ptr<const NodeOptions> o = options();
   const double now = ros::WallTime::now().toSec();
   if (now < next_graph_wall_sec_) {
