@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include "toro_ros/node/live_options.h"
 #include "toro_ros/node/node_options.h"
 #include "toro_ros/offline/flat_yaml.h"
 
@@ -124,4 +125,35 @@ TEST(NodeOptions, EveryPrivateNameInTheMessageAndServiceCommentsExists) {
     }
   }
   EXPECT_GE(mentioned, 8u);
+}
+
+// README.md's "Node API" lists the parameters by group: every known key, and nothing else, and
+// marks as "live" exactly those of cfg/MapCorrector.cfg.
+TEST(NodeOptions, TheReadmeNodeApiListsEveryParameter) {
+  std::ifstream in(std::string(TORO_SOURCE_DIR) + "/README.md");
+  ASSERT_TRUE(in.good());
+  const std::string readme((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::size_t begin = readme.find("\n## Node API");
+  ASSERT_NE(begin, std::string::npos);
+  const std::size_t table = readme.find("| group | parameter | default | live |", begin);
+  ASSERT_NE(table, std::string::npos);
+  const std::size_t end = readme.find("\n\n", table);
+  std::set<std::string> listed, marked_live;
+  std::istringstream rows(readme.substr(table, end - table));
+  std::string row;
+  while (std::getline(rows, row)) {
+    // "| group | `key` ... | default | live |": the first back-quoted word of the second cell.
+    const std::size_t cell = row.find('|', 1);
+    const std::size_t open = row.find('`', cell), close = row.find('`', open + 1);
+    if (cell == std::string::npos || open == std::string::npos || close == std::string::npos) continue;
+    const std::string key = row.substr(open + 1, close - open - 1);
+    listed.insert(key);
+    const std::string live_cell = " live |";
+    if (row.size() >= live_cell.size() && row.compare(row.size() - live_cell.size(), live_cell.size(), live_cell) == 0)
+      marked_live.insert(key);
+  }
+  EXPECT_EQ(marked_live, liveParameterKeys());
+  const std::set<std::string> known = knownParameterKeys();
+  for (const std::string& key : known) EXPECT_TRUE(listed.count(key)) << key << " is not in README.md's Node API";
+  for (const std::string& key : listed) EXPECT_TRUE(known.count(key)) << "README.md's Node API lists " << key;
 }
