@@ -45,15 +45,25 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
       private_nh_(private_nh),
       options_(std::make_shared<const NodeOptions>(loadOptions(private_nh, &params_, &unknown_parameters_))),
       applied_config_(MapCorrectorConfig::__getDefault__()),
+      graph_directory_(options_->graph_directory),
       last_odometry_wall_sec_(std::numeric_limits<double>::quiet_NaN()),
       start_wall_sec_(ros::WallTime::now().toSec()),
       input_health_(options_->diagnostics),
       diagnostics_(nh, private_nh) {
+  {
+    // No other thread runs yet: the options may still be replaced without the lock.
+    NodeOptions resolved = *options_;
+    ROS_INFO_STREAM("map corrector: " << graph_directory_.resolveOperatorPaths(
+                        &resolved.load_path, &resolved.pipeline.persistence.autosave_path));
+    options_ = std::make_shared<const NodeOptions>(resolved);
+  }
   auto pipeline = std::make_unique<Pipeline>(
       options_->pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); });
   // Before the worker takes the pipeline; throws, stopping the node, if load_path exists but
-  // cannot be loaded, rather than start empty and autosave over it.
-  const std::string resumed = loadOnStart(*pipeline, options_->load_path);
+  // cannot be loaded, rather than start empty and autosave over it.  Its message goes to /rosout,
+  // which anyone on the ROS network reads, and parameters can be set by anyone there: it quotes
+  // no file content.
+  const std::string resumed = loadOnStart(*pipeline, options_->load_path, /*quote_content=*/false);
   if (!resumed.empty()) ROS_INFO_STREAM("map corrector: " << resumed);
   path_pub_ = private_nh_.advertise<nav_msgs::Path>(names::kPathTopic, 1, true);
   markers_pub_ = private_nh_.advertise<visualization_msgs::MarkerArray>(names::kMarkersTopic, 1, true);

@@ -17,7 +17,11 @@ void MapCorrectorNode::reconfigure(MapCorrectorConfig& config, std::uint32_t) {
     return;
   }
   OptionsReport report;
-  const NodeOptions next = loadNodeOptions(requested, &report);
+  NodeOptions next = loadNodeOptions(requested, &report);
+  // The start-up paths as resolved against graph_directory (not live: they stay as they were).
+  const std::shared_ptr<const NodeOptions> current = options();
+  next.load_path = current->load_path;
+  next.pipeline.persistence.autosave_path = current->pipeline.persistence.autosave_path;
   if (!report.errors.empty()) {
     std::string all;
     for (const std::string& e : report.errors) all += "\n  " + e;
@@ -36,7 +40,7 @@ void MapCorrectorNode::reconfigure(MapCorrectorConfig& config, std::uint32_t) {
     ROS_WARN_STREAM("map corrector: reconfigure: the worker did not answer within service_timeout_sec; "
                     "the pipeline takes the change when it gets to it");
 
-  const std::shared_ptr<const NodeOptions> before = options();
+  const std::shared_ptr<const NodeOptions>& before = current;
   {
     std::lock_guard<std::mutex> lock(options_mutex_);
     options_ = std::make_shared<const NodeOptions>(next);

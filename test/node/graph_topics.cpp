@@ -7,7 +7,7 @@
 //     last odometry pose, its covariance rotated into the map, also after the input stopped;
 //   - ~path carrying the final state once the input (and the simulated clock) stopped;
 //   - a front end naming keyframes by the ids it read from ~graph.
-#include <unistd.h>
+#include <filesystem>
 #include <set>
 
 #include <gtest/gtest.h>
@@ -85,8 +85,9 @@ TEST(GraphTopics, GraphPoseAndPathMatchTheSavedGraph) {
   const GetStatus::Response status = client->status();
   ASSERT_TRUE(waitForGraph(status.keyframes, status.constraints, status.last_chi2));
 
+  // A name in the node's graph_directory (graph_topics.test sets it; main() reads it back).
   const std::string path = temp_dir + "/graph.g2o";
-  const GraphFile::Response saved = client->graphFile("save_graph", path);
+  const GraphFile::Response saved = client->graphFile("save_graph", "graph.g2o");
   ASSERT_TRUE(saved.success) << saved.message;
   const toro::PoseGraph file = toro::readGraph(path);
   const Sidecar sidecar = readSidecar(sidecarPath(path));
@@ -201,14 +202,15 @@ int main(int argc, char** argv) {
   ros::NodeHandle nh;
   ros::AsyncSpinner spinner(2);
   spinner.start();
-  char dir[] = "/tmp/toro_graph_topics_XXXXXX";
-  if (mkdtemp(dir) == nullptr) return 1;
-  temp_dir = dir;
   std::string node = "/map_corrector";
   ros::param::get("~node", node);
+  // The node's graph_directory (graph_topics*.test): ~save_graph's names go there.
+  if (!ros::param::get(node + "/graph_directory", temp_dir) || temp_dir.empty()) return 1;
+  std::filesystem::create_directories(temp_dir);
   Client c(node);
   client = &c;
   const int result = RUN_ALL_TESTS();
+  std::filesystem::remove_all(temp_dir);
   client = nullptr;
   spinner.stop();
   return result;

@@ -34,6 +34,7 @@
 #include "toro_ros/node/input_health.h"
 #include "toro_ros/node/node_options.h"
 #include "toro_ros/node/pipeline_worker.h"
+#include "toro_ros/pipeline/graph_directory.h"
 #include "toro_ros/pipeline/input_table.h"
 #include "toro_ros/pipeline/pipeline.h"
 
@@ -106,6 +107,8 @@ class MapCorrectorNode {
   mutable std::mutex options_mutex_;  // guards options_ (the pointer)
   std::shared_ptr<const NodeOptions> options_;
   MapCorrectorConfig applied_config_;
+  // ~save_graph / ~load_graph names are confined to it (set before the services are advertised).
+  GraphDirectory graph_directory_;
 
   ros::Publisher path_pub_, markers_pub_, graph_pub_, pose_pub_;
   std::unique_ptr<PipelineWorker> worker_;
