@@ -53,7 +53,8 @@ PoseGraph graphMessage(const Pipeline& pipeline, const Snapshot& snapshot, const
   for (std::size_t c = 0; c < constraints.size(); ++c) {
     const SnapshotEdge* edge = c < snapshot.edges.size() ? &snapshot.edges[c] : nullptr;
     const bool loop_closure = edge != nullptr && edge->loop_closure;
-    msg.edges.push_back(edgeMessage(constraints[c], loop_closure ? PoseGraphEdge::LOOP_CLOSURE : PoseGraphEdge::ODOMETRY,
+    msg.edges.push_back(edgeMessage(constraints[c],
+                                    loop_closure ? PoseGraphEdge::LOOP_CLOSURE : PoseGraphEdge::ODOMETRY,
                                     edge != nullptr ? edge->weight : 1.0, toro::constraintChi2(g, c)));
   }
   for (const RejectedLoopClosure& r : pipeline.rejectedLoopClosures())
@@ -61,7 +62,8 @@ PoseGraph graphMessage(const Pipeline& pipeline, const Snapshot& snapshot, const
   return msg;
 }
 
-geometry_msgs::PoseWithCovarianceStamped correctedPose(const toro::Pose3& map_T_odom, const nav_msgs::Odometry& odom,
+geometry_msgs::PoseWithCovarianceStamped correctedPose(const toro::Pose3& map_T_odom,
+                                                       const nav_msgs::Odometry& odom,
                                                        const std::string& map_frame) {
   geometry_msgs::PoseWithCovarianceStamped out;
   out.header.stamp = odom.header.stamp;

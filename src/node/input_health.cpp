@@ -21,7 +21,8 @@ std::string seconds(double s) {
 
 // The refusal reason that grew most since `before` ("" when none grew).  Keys that count
 // messages used with default covariances are not refusals and are left out.
-std::string topReason(const PipelineCounters& now, const PipelineCounters* before, const std::string& prefix) {
+std::string topReason(const PipelineCounters& now, const PipelineCounters* before,
+                      const std::string& prefix) {
   std::string best;
   std::uint64_t most = 0;
   for (const auto& [reason, count] : now.refused_by_reason) {
@@ -57,10 +58,12 @@ std::vector<HealthFinding> InputHealth::update(const InputSample& s) {
   // Odometry arrives and none of it enters the graph: the map cannot follow the robot.
   if (c.odometry_messages > 0 && c.odometry_refused == c.odometry_messages) {
     found.push_back({DiagnosticStatus::ERROR, "all " + std::to_string(c.odometry_messages) + " of " +
-                                                  std::to_string(c.odometry_messages) + " odometry messages refused" +
+                                                  std::to_string(c.odometry_messages) +
+                                                  " odometry messages refused" +
                                                   topReason(c, nullptr, "odometry: ")});
   } else if (before != nullptr && c.odometry_messages > before->odometry_messages &&
-             c.odometry_refused - before->odometry_refused == c.odometry_messages - before->odometry_messages) {
+             c.odometry_refused - before->odometry_refused ==
+                 c.odometry_messages - before->odometry_messages) {
     const std::uint64_t n = c.odometry_messages - before->odometry_messages;
     found.push_back({DiagnosticStatus::ERROR, "all " + std::to_string(n) + " odometry messages of the last " +
                                                   seconds(s.now_sec - previous_->now_sec) + " refused" +
@@ -69,10 +72,11 @@ std::vector<HealthFinding> InputHealth::update(const InputSample& s) {
 
   if (options_.stale_odometry_sec > 0) {
     if (s.last_odometry_sec && s.now_sec - *s.last_odometry_sec > options_.stale_odometry_sec)
-      found.push_back({DiagnosticStatus::WARN, "no odometry for " + seconds(s.now_sec - *s.last_odometry_sec)});
+      found.push_back(
+          {DiagnosticStatus::WARN, "no odometry for " + seconds(s.now_sec - *s.last_odometry_sec)});
     else if (!s.last_odometry_sec && s.now_sec - s.start_sec > options_.stale_odometry_sec)
-      found.push_back({DiagnosticStatus::WARN, "no odometry received in the " + seconds(s.now_sec - s.start_sec) +
-                                                   " since the start"});
+      found.push_back({DiagnosticStatus::WARN, "no odometry received in the " +
+                                                   seconds(s.now_sec - s.start_sec) + " since the start"});
   }
 
   refusal_rate_ = 0.0;
@@ -82,14 +86,16 @@ std::vector<HealthFinding> InputHealth::update(const InputSample& s) {
     refusal_rate_ = static_cast<double>(refused) / (s.now_sec - previous_->now_sec);
     if (refusal_rate_ > options_.max_refusals_per_sec) {
       std::ostringstream m;
-      m << std::setprecision(3) << refusal_rate_ << " refusals/s over the last " << seconds(s.now_sec - previous_->now_sec)
-        << " (more than " << options_.max_refusals_per_sec << "/s)" << topReason(c, before, "");
+      m << std::setprecision(3) << refusal_rate_ << " refusals/s over the last "
+        << seconds(s.now_sec - previous_->now_sec) << " (more than " << options_.max_refusals_per_sec << "/s)"
+        << topReason(c, before, "");
       found.push_back({DiagnosticStatus::WARN, m.str()});
     }
   }
 
   // Loop closures come but none was ever applied: the map is never corrected.
-  if (c.loop_closures_received > 0 && c.loop_closures_applied == 0 && c.loop_closures_refused == c.loop_closures_received)
+  if (c.loop_closures_received > 0 && c.loop_closures_applied == 0 &&
+      c.loop_closures_refused == c.loop_closures_received)
     found.push_back({DiagnosticStatus::WARN, "none of the " + std::to_string(c.loop_closures_received) +
                                                  " loop closures received was applied" +
                                                  topReason(c, nullptr, "loop closure: ")});
@@ -101,7 +107,8 @@ std::vector<HealthFinding> InputHealth::update(const InputSample& s) {
           queue_lengths_.end()) {
     std::string lengths;
     for (std::size_t n : queue_lengths_) lengths += (lengths.empty() ? "" : " -> ") + std::to_string(n);
-    found.push_back({DiagnosticStatus::WARN, "input queue growing (" + lengths + " messages): the worker falls behind"});
+    found.push_back(
+        {DiagnosticStatus::WARN, "input queue growing (" + lengths + " messages): the worker falls behind"});
   }
 
   std::stable_sort(found.begin(), found.end(),

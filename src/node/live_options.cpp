@@ -19,7 +19,8 @@ std::map<std::string, std::string> readValues(const XmlRpc::XmlRpcValue& params)
   for (std::string line : report.values) {
     const std::size_t eq = line.find(" = ");
     if (eq == std::string::npos) continue;
-    if (line.size() >= kDefault.size() && line.compare(line.size() - kDefault.size(), kDefault.size(), kDefault) == 0)
+    if (line.size() >= kDefault.size() &&
+        line.compare(line.size() - kDefault.size(), kDefault.size(), kDefault) == 0)
       line.resize(line.size() - kDefault.size());
     values[line.substr(0, eq)] = line.substr(eq + 3);
   }
@@ -45,7 +46,8 @@ XmlRpc::XmlRpcValue withConfig(XmlRpc::XmlRpcValue params, const MapCorrectorCon
   return params;
 }
 
-std::vector<std::string> changedParameters(const XmlRpc::XmlRpcValue& before, const XmlRpc::XmlRpcValue& after) {
+std::vector<std::string> changedParameters(const XmlRpc::XmlRpcValue& before,
+                                           const XmlRpc::XmlRpcValue& after) {
   const std::map<std::string, std::string> a = readValues(before), b = readValues(after);
   std::vector<std::string> changes;
   for (const auto& [key, value] : b) {
@@ -57,7 +59,8 @@ std::vector<std::string> changedParameters(const XmlRpc::XmlRpcValue& before, co
 
 std::set<std::string> liveParameterKeys() {
   std::set<std::string> keys;
-  for (const auto& description : MapCorrectorConfig::__getParamDescriptions__()) keys.insert(description->name);
+  for (const auto& description : MapCorrectorConfig::__getParamDescriptions__())
+    keys.insert(description->name);
   return keys;
 }
 

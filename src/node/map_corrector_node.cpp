@@ -142,8 +142,9 @@ void MapCorrectorNode::startTimers() {
   diagnostics_.setHardwareID("none");
   diagnostics_.add("map corrector", this, &MapCorrectorNode::diagnose);
   // force_update: Updater::update() paces itself with ros::Time, which stops with a bag's clock.
-  diagnostics_timer_ = nh_.createWallTimer(ros::WallDuration(1.0 / o->diagnostics_rate_hz),
-                                           [this](const ros::WallTimerEvent&) { diagnostics_.force_update(); });
+  diagnostics_timer_ =
+      nh_.createWallTimer(ros::WallDuration(1.0 / o->diagnostics_rate_hz),
+                          [this](const ros::WallTimerEvent&) { diagnostics_.force_update(); });
 }
 
 void MapCorrectorNode::subscribeInputs() {

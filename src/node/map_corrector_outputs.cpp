@@ -49,7 +49,8 @@ void MapCorrectorNode::onOdometryArrived(const nav_msgs::Odometry::ConstPtr& msg
   const std::shared_ptr<const NodeOptions> o = options();
   // Only what the pipeline would take (it refuses the rest, counted): a valid pose in odom_frame.
   if (!s->has_map_T_odom || !validateOdometry(*msg).empty()) return;
-  if (!msg->header.frame_id.empty() && withoutLeadingSlash(msg->header.frame_id) != withoutLeadingSlash(o->odom_frame))
+  if (!msg->header.frame_id.empty() &&
+      withoutLeadingSlash(msg->header.frame_id) != withoutLeadingSlash(o->odom_frame))
     return;
   pose_pub_.publish(correctedPose(s->map_T_odom, *msg, o->map_frame));
   std::lock_guard<std::mutex> lock(pose_mutex_);
@@ -121,7 +122,8 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   if (!unknown_parameters_.empty())
     findings.push_back({diagnostic_msgs::DiagnosticStatus::WARN, "unknown parameters (typos?), see the log"});
   if (findings.empty()) {
-    status.summary(diagnostic_msgs::DiagnosticStatus::OK, s->keyframes.empty() ? "waiting for odometry" : "running");
+    status.summary(diagnostic_msgs::DiagnosticStatus::OK,
+                   s->keyframes.empty() ? "waiting for odometry" : "running");
   } else {
     std::uint8_t level = diagnostic_msgs::DiagnosticStatus::OK;
     std::string message;
@@ -136,7 +138,8 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   status.add("unknown parameters", unknown);
   status.add("queue length", sample.queue_length);
   status.add("queue dropped", worker_->dropped());
-  status.add("odometry age sec", sample.last_odometry_sec ? sample.now_sec - *sample.last_odometry_sec : -1.0);
+  status.add("odometry age sec",
+             sample.last_odometry_sec ? sample.now_sec - *sample.last_odometry_sec : -1.0);
   status.add("odometry messages", s->counters.odometry_messages);
   status.add("odometry refused", s->counters.odometry_refused);
   status.add("refusals per sec", input_health_.refusalRate());

@@ -37,8 +37,9 @@ void MapCorrectorNode::reconfigure(MapCorrectorConfig& config, std::uint32_t) {
     return;
   }
   if (!applied)
-    ROS_WARN_STREAM("map corrector: reconfigure: the worker did not answer within service_timeout_sec; "
-                    "the pipeline takes the change when it gets to it");
+    ROS_WARN_STREAM(
+        "map corrector: reconfigure: the worker did not answer within service_timeout_sec; "
+        "the pipeline takes the change when it gets to it");
 
   const std::shared_ptr<const NodeOptions>& before = current;
   {

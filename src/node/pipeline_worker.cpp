@@ -4,8 +4,8 @@
 
 namespace toro_ros {
 
-PipelineWorker::PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t queue_capacity, ErrorSink on_error,
-                               SnapshotObserver observer)
+PipelineWorker::PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t queue_capacity,
+                               ErrorSink on_error, SnapshotObserver observer)
     : pipeline_(std::move(pipeline)),
       on_error_(std::move(on_error)),
       observer_(std::move(observer)),

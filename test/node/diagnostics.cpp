@@ -21,7 +21,8 @@ double next_stamp = 200.0;
 void drive(double seconds, const std::string& frame) {
   static double x = 0;
   for (int i = 0; i < static_cast<int>(seconds * 20); ++i) {
-    nav_msgs::Odometry m = toro_ros::testing::odometryMsg(ros::Time(next_stamp), toro::Pose3::fromRollPitchYaw(x, 0, 0, 0, 0, 0));
+    nav_msgs::Odometry m = toro_ros::testing::odometryMsg(ros::Time(next_stamp),
+                                                          toro::Pose3::fromRollPitchYaw(x, 0, 0, 0, 0, 0));
     m.header.frame_id = frame;
     client->publishOdometry(m);
     next_stamp += 0.05;
@@ -52,7 +53,8 @@ std::string lastStatus() {
 
 TEST(Diagnostics, WarnBeforeTheFirstOdometry) {
   ASSERT_TRUE(client->connect());
-  EXPECT_TRUE(waitForStatus(diagnostic_msgs::DiagnosticStatus::WARN, {"no odometry received"})) << lastStatus();
+  EXPECT_TRUE(waitForStatus(diagnostic_msgs::DiagnosticStatus::WARN, {"no odometry received"}))
+      << lastStatus();
 }
 
 TEST(Diagnostics, OkWhileOdometryFlows) {
@@ -69,8 +71,8 @@ TEST(Diagnostics, WarnWhenOdometryStops) {
 
 TEST(Diagnostics, ErrorWhenEveryOdometryMessageIsRefused) {
   std::thread publisher([] { drive(2.0, "wheel_odom"); });
-  EXPECT_TRUE(waitForStatus(diagnostic_msgs::DiagnosticStatus::ERROR, {"odometry messages of the last", "refused",
-                                                                        "odometry: wrong frame"}))
+  EXPECT_TRUE(waitForStatus(diagnostic_msgs::DiagnosticStatus::ERROR,
+                            {"odometry messages of the last", "refused", "odometry: wrong frame"}))
       << lastStatus();
   publisher.join();
   // The refusal rate (20/s) is above diagnostics_max_refusals_per_sec as well; both are said.

@@ -74,7 +74,8 @@ TEST(GraphTopics, GraphPoseAndPathMatchTheSavedGraph) {
   client->publishLoopClosure(toro_ros::testing::trueLoopClosure(scenario, 0, last));
   ASSERT_TRUE(Client::waitFor([&] {
     const GetStatus::Response s = client->status();
-    return s.odometry_messages == scenario.odometry.size() && s.loop_closures_applied == 1 && s.queue_length == 0;
+    return s.odometry_messages == scenario.odometry.size() && s.loop_closures_applied == 1 &&
+           s.queue_length == 0;
   }));
   // One correction after the input stopped, with the clock stopped as at the end of a bag:
   // ~graph, ~path and ~pose must still show it (their timers run on wall time).
@@ -131,12 +132,16 @@ TEST(GraphTopics, GraphPoseAndPathMatchTheSavedGraph) {
 
   // ~pose: map_T_odom (newest keyframe's corrected pose times its odometry pose^-1) times the last
   // odometry pose, republished after ~optimize although no odometry came since.
-  const toro::Pose3 map_T_odom = file.node(file.numNodes() - 1).pose * sidecar.keyframes.back().odom_T_base.inverse();
+  const toro::Pose3 map_T_odom =
+      file.node(file.numNodes() - 1).pose * sidecar.keyframes.back().odom_T_base.inverse();
   const toro::Pose3 expected = map_T_odom * poseFromMsg(scenario.odometry.back().pose.pose);
   ASSERT_TRUE(client->waitObserved([&](const Observed& o) {
-    return o.pose && positionError(o.pose->pose.pose, expected) < 1e-9 && angleError(o.pose->pose.pose, expected) < 1e-9;
-  })) << "expected the corrected pose " << expected.translation().transpose();
-  const auto pose = client->observedCopy<geometry_msgs::PoseWithCovarianceStamped>([](const Observed& o) { return *o.pose; });
+    return o.pose && positionError(o.pose->pose.pose, expected) < 1e-9 &&
+           angleError(o.pose->pose.pose, expected) < 1e-9;
+  })) << "expected the corrected pose "
+      << expected.translation().transpose();
+  const auto pose = client->observedCopy<geometry_msgs::PoseWithCovarianceStamped>(
+      [](const Observed& o) { return *o.pose; });
   EXPECT_EQ(pose.header.frame_id, "map");
   EXPECT_EQ(pose.header.stamp, scenario.odometry.back().header.stamp);
   toro::Matrix6 rotate = toro::Matrix6::Zero();
@@ -173,7 +178,8 @@ TEST(GraphTopics, LoopClosureNamingKeyframeIdsReadFromTheGraph) {
   for (int k = 0; k < 3; ++k) lc.covariance[7 * k] = 4e-4, lc.covariance[7 * (k + 3)] = 1e-4;
   const GetStatus::Response before = client->status();
   client->publishLoopClosure(lc);
-  ASSERT_TRUE(Client::waitFor([&] { return client->status().loop_closures_applied == before.loop_closures_applied + 1; }));
+  ASSERT_TRUE(Client::waitFor(
+      [&] { return client->status().loop_closures_applied == before.loop_closures_applied + 1; }));
   // It comes back on ~graph as a loop closure between exactly those ids, with its measurement and
   // covariance.
   EXPECT_TRUE(client->waitObserved([&](const Observed& o) {

@@ -1,11 +1,12 @@
-// rostest client for run-time tuning (live_tuning.test): parameters changed with a
-// dynamic_reconfigure client while the node runs take effect (keyframe thresholds on the
+// rostest client for run-time tuning (live_tuning.test): parameters changed through
+// dynamic_reconfigure (set_parameters) while the node runs take effect (keyframe thresholds on the
 // keyframes made from then on, exactly as a pipeline given the same change; the gate on the next
 // loop closure; the tf rate), are logged change by change and land on the parameter server, and
 // leave the parameters that are not live as they were.
 #include <gtest/gtest.h>
 
-#include <dynamic_reconfigure/client.h>
+#include <dynamic_reconfigure/Config.h>
+#include <dynamic_reconfigure/Reconfigure.h>
 
 #include "../pipeline/drift_scenario.h"
 #include "node_test_client.h"
@@ -22,13 +23,18 @@ using toro_ros::testing::Observed;
 Client* client = nullptr;
 const toro_ros::testing::DriftScenario scenario = toro_ros::testing::makeDriftingSquare();
 
+// A dynamic_reconfigure client as dynparam and rqt_reconfigure are: the node's set_parameters
+// service and its parameter_updates topic.  (dynamic_reconfigure::Client is not used: it decodes
+// updates into a default-constructed config whose bools are uninitialised, which UBSan reports
+// in the ASan stage; here every config starts from the cfg's defaults.)
 class Reconfigure {
  public:
   Reconfigure()
-      : client_("/map_corrector", [this](const MapCorrectorConfig& c) {
-          std::lock_guard<std::mutex> lock(mutex_);
-          current_ = c;
-        }) {}
+      : updates_(ros::NodeHandle().subscribe<dynamic_reconfigure::Config>(
+            "/map_corrector/parameter_updates", 1, [this](const dynamic_reconfigure::Config::ConstPtr& msg) {
+              std::lock_guard<std::mutex> lock(mutex_);
+              current_ = decode(*msg);
+            })) {}
   // The node's configuration as last published on parameter_updates (waits in wall time).
   std::optional<MapCorrectorConfig> current() {
     Client::waitFor([&] {
@@ -38,10 +44,23 @@ class Reconfigure {
     std::lock_guard<std::mutex> lock(mutex_);
     return current_;
   }
-  bool set(MapCorrectorConfig& config) { return client_.setConfiguration(config); }
+  // Sends `config`; on success `config` is what the node answered (what it applied).
+  bool set(MapCorrectorConfig& config) {
+    dynamic_reconfigure::Reconfigure srv;
+    config.__toMessage__(srv.request.config);
+    if (!ros::service::call("/map_corrector/set_parameters", srv)) return false;
+    config = decode(srv.response.config);
+    return true;
+  }
 
  private:
-  dynamic_reconfigure::Client<MapCorrectorConfig> client_;
+  static MapCorrectorConfig decode(dynamic_reconfigure::Config msg) {
+    MapCorrectorConfig c = MapCorrectorConfig::__getDefault__();
+    c.__fromMessage__(msg);
+    return c;
+  }
+
+  ros::Subscriber updates_;
   std::mutex mutex_;  // guards current_
   std::optional<MapCorrectorConfig> current_;
 };
@@ -109,7 +128,8 @@ TEST(LiveTuning, GateSwitchedOnLiveRejectsTheNextWrongLoopClosure) {
   MapCorrectorConfig config = *reconfigure->current();
   config.loop_closure_gate_confidence = 0.99;
   ASSERT_TRUE(reconfigure->set(config));
-  EXPECT_TRUE(Client::waitFor([] { return client->logged("reconfigured loop_closure_gate_confidence: 0 -> 0.99"); }));
+  EXPECT_TRUE(
+      Client::waitFor([] { return client->logged("reconfigured loop_closure_gate_confidence: 0 -> 0.99"); }));
   // The end of the run claimed 10 m from where it is, relative to the start: wrong.
   LoopClosure wrong = toro_ros::testing::trueLoopClosure(scenario, 0, scenario.odometry.size() - 1);
   wrong.from_T_to.position.x += 10.0;

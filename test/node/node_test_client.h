@@ -110,7 +110,8 @@ class NodeTestClient {
   // Waits on the subscriptions' condition variable.
   bool waitObserved(const std::function<bool(const Observed&)>& pred, double timeout_sec = kTimeoutSec) {
     std::unique_lock<std::mutex> lock(observed.mutex);
-    return observed.cv.wait_for(lock, std::chrono::duration<double>(timeout_sec), [&] { return pred(observed); });
+    return observed.cv.wait_for(lock, std::chrono::duration<double>(timeout_sec),
+                                [&] { return pred(observed); });
   }
   template <class T>
   T observedCopy(const std::function<T(const Observed&)>& get) {

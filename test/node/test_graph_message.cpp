@@ -118,7 +118,8 @@ TEST(GraphMessage, EmptyPipelineGivesAnEmptyGraph) {
 
 TEST(CorrectedPose, IsMapToOdomTimesTheOdometryWithItsCovarianceRotated) {
   const toro::Pose3 map_T_odom = toro::Pose3::fromRollPitchYaw(1.0, -2.0, 0.5, 0.0, 0.0, M_PI / 2);
-  nav_msgs::Odometry odom = toro_ros::testing::odometryMsg(ros::Time(12.5), toro::Pose3::fromRollPitchYaw(3, 0, 0, 0, 0, 0));
+  nav_msgs::Odometry odom =
+      toro_ros::testing::odometryMsg(ros::Time(12.5), toro::Pose3::fromRollPitchYaw(3, 0, 0, 0, 0, 0));
   odom.pose.covariance[0] = 0.04;   // x
   odom.pose.covariance[7] = 0.01;   // y
   odom.pose.covariance[14] = 0.09;  // z

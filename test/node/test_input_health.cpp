@@ -10,7 +10,8 @@ using diagnostic_msgs::DiagnosticStatus;
 
 namespace {
 
-InputSample sample(double now, std::optional<double> last_odometry, std::uint64_t odometry, std::uint64_t refused) {
+InputSample sample(double now, std::optional<double> last_odometry, std::uint64_t odometry,
+                   std::uint64_t refused) {
   InputSample s;
   s.now_sec = now;
   s.start_sec = 0.0;
@@ -48,7 +49,8 @@ TEST(InputHealth, StaleOdometryWarnsAfterTheConfiguredTime) {
   InputHealth h(o);
   EXPECT_TRUE(h.update(sample(1.5, std::nullopt, 0, 0)).empty());  // just started
   const auto none = h.update(sample(2.5, std::nullopt, 0, 0));
-  EXPECT_TRUE(has(none, DiagnosticStatus::WARN, "no odometry received in the 2.5 s since the start")) << describe(none);
+  EXPECT_TRUE(has(none, DiagnosticStatus::WARN, "no odometry received in the 2.5 s since the start"))
+      << describe(none);
   EXPECT_TRUE(h.update(sample(4.0, 3.9, 10, 0)).empty());
   EXPECT_TRUE(h.update(sample(5.5, 3.9, 10, 0)).empty());  // 1.6 s: not yet
   const auto stale = h.update(sample(30.0, 3.9, 10, 0));
@@ -64,13 +66,15 @@ TEST(InputHealth, AllOdometryRefusedIsAnErrorNamingTheReason) {
   const auto all = h.update(sample(1.0, 0.99, 108, 108));
   ASSERT_FALSE(all.empty());
   EXPECT_EQ(all.front().level, DiagnosticStatus::ERROR);
-  EXPECT_TRUE(has(all, DiagnosticStatus::ERROR, "all 108 of 108 odometry messages refused (mostly 'odometry: wrong frame')"))
+  EXPECT_TRUE(has(all, DiagnosticStatus::ERROR,
+                  "all 108 of 108 odometry messages refused (mostly 'odometry: wrong frame')"))
       << describe(all);
   // Later: some were accepted in between, but the last second's 20 were all refused.
   InputHealth g(InputHealthOptions{});
   g.update(sample(1.0, 0.99, 100, 0));
   const auto window = g.update(sample(2.0, 1.99, 120, 20));
-  EXPECT_TRUE(has(window, DiagnosticStatus::ERROR, "all 20 odometry messages of the last 1.0 s refused")) << describe(window);
+  EXPECT_TRUE(has(window, DiagnosticStatus::ERROR, "all 20 odometry messages of the last 1.0 s refused"))
+      << describe(window);
   // ... and 20 refusals/s are above the default 1/s.
   EXPECT_TRUE(has(window, DiagnosticStatus::WARN, "20 refusals/s")) << describe(window);
   EXPECT_DOUBLE_EQ(g.refusalRate(), 20.0);
@@ -98,7 +102,8 @@ TEST(InputHealth, LoopClosuresNeverAppliedWarn) {
   s.counters.refused_by_reason["loop closure: no keyframe within tolerance"] = 3;
   const auto f = h.update(s);
   EXPECT_TRUE(has(f, DiagnosticStatus::WARN,
-                  "none of the 3 loop closures received was applied (mostly 'loop closure: no keyframe within tolerance')"))
+                  "none of the 3 loop closures received was applied (mostly 'loop closure: no keyframe "
+                  "within tolerance')"))
       << describe(f);
   s.now_sec = 2.0;
   s.counters.loop_closures_received = 4;

@@ -18,18 +18,22 @@ TEST(LiveOptions, EveryCfgParameterIsAKnownKeyWithTheNodesDefault) {
   const std::set<std::string> known = knownParameterKeys();
   const std::set<std::string> live = liveParameterKeys();
   EXPECT_GE(live.size(), 20u);
-  for (const std::string& key : live) EXPECT_TRUE(known.count(key)) << key << " (cfg) is not a parameter of the node";
+  for (const std::string& key : live)
+    EXPECT_TRUE(known.count(key)) << key << " (cfg) is not a parameter of the node";
   // Defaults: the cfg's default config read as parameters changes nothing against no parameters.
   const XmlRpc::XmlRpcValue none;
   const XmlRpc::XmlRpcValue defaults = withConfig(none, MapCorrectorConfig::__getDefault__());
-  for (const std::string& change : changedParameters(none, defaults)) ADD_FAILURE() << "cfg default differs: " << change;
+  for (const std::string& change : changedParameters(none, defaults))
+    ADD_FAILURE() << "cfg default differs: " << change;
 }
 
 TEST(LiveOptions, EveryValueTheCfgOffersPassesValidation) {
-  for (const MapCorrectorConfig* bound : {&MapCorrectorConfig::__getMin__(), &MapCorrectorConfig::__getMax__()}) {
+  for (const MapCorrectorConfig* bound :
+       {&MapCorrectorConfig::__getMin__(), &MapCorrectorConfig::__getMax__()}) {
     OptionsReport report;
     loadNodeOptions(withConfig(XmlRpc::XmlRpcValue(), *bound), &report);
-    for (const std::string& e : report.errors) ADD_FAILURE() << (bound == &MapCorrectorConfig::__getMin__() ? "min: " : "max: ") << e;
+    for (const std::string& e : report.errors)
+      ADD_FAILURE() << (bound == &MapCorrectorConfig::__getMin__() ? "min: " : "max: ") << e;
   }
 }
 

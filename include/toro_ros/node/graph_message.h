@@ -25,7 +25,8 @@ PoseGraph graphMessage(const Pipeline& pipeline, const Snapshot& snapshot, const
 // (blockdiag(R, R) Sigma blockdiag(R, R)^T with R the rotation of map_T_odom): the odometry
 // source's uncertainty, without the uncertainty of map_T_odom itself (TORO computes no marginal
 // covariances).
-geometry_msgs::PoseWithCovarianceStamped correctedPose(const toro::Pose3& map_T_odom, const nav_msgs::Odometry& odom,
+geometry_msgs::PoseWithCovarianceStamped correctedPose(const toro::Pose3& map_T_odom,
+                                                       const nav_msgs::Odometry& odom,
                                                        const std::string& map_frame);
 
 }  // namespace toro_ros

@@ -27,8 +27,8 @@ struct InputHealthOptions {
 // under simulated time the bag's clock stops with the bag, and stale input is a wall-time fact.
 struct InputSample {
   double now_sec = 0.0;
-  double start_sec = 0.0;                        // when the node started
-  std::optional<double> last_odometry_sec;       // arrival of the newest odometry message
+  double start_sec = 0.0;                   // when the node started
+  std::optional<double> last_odometry_sec;  // arrival of the newest odometry message
   std::size_t queue_length = 0;
   PipelineCounters counters;
 };

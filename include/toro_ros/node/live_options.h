@@ -19,7 +19,8 @@ XmlRpc::XmlRpcValue withConfig(XmlRpc::XmlRpcValue params, const MapCorrectorCon
 
 // "key: before -> after" for every known key whose value loadNodeOptions reads differently from
 // the two parameter structs, in key order.
-std::vector<std::string> changedParameters(const XmlRpc::XmlRpcValue& before, const XmlRpc::XmlRpcValue& after);
+std::vector<std::string> changedParameters(const XmlRpc::XmlRpcValue& before,
+                                           const XmlRpc::XmlRpcValue& after);
 
 // The names of the parameters in cfg/MapCorrector.cfg.
 std::set<std::string> liveParameterKeys();
