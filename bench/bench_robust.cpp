@@ -8,7 +8,9 @@
 //
 //   bench_robust [--datasets DIR] [--only NAME[,NAME]] [--kinds random,local,grouped]
 //                [--counts 100,500,1000] [--grouped-counts 100] [--kernel dcs] [--width W]
-//                [--runs 3] [--seed S] [--guess odometry|chain]
+//                [--runs 3] [--seed S] [--guess odometry|chain] [--dump DIR [--dump-only]]
+// --dump DIR writes every graph with outliers (and the clean optimum) to DIR; with --dump-only
+// nothing else is solved (for bench/run_robust_offline.sh).
 #include <time.h>
 
 #include <algorithm>
@@ -56,11 +58,12 @@ struct Settings {
   std::vector<std::string> kinds{"random", "local", "grouped"};
   std::vector<std::size_t> counts{100, 500, 1000};
   std::vector<std::size_t> grouped_counts{100};
-  RobustOptions robust{RobustKernel::kDcs, 1.0};
+  RobustOptions robust{RobustKernel::kDcs};  // the product defaults (width, adaptation)
   int runs = 3;
   std::uint32_t seed = 1;
   InitialGuess guess = InitialGuess::kChainOdometry;
   std::string dump;  // directory to write each graph with outliers to (empty: none)
+  bool dump_only = false;  // --dump-only: write the graphs (and the clean optimum), solve nothing else
 };
 
 struct Timed {
@@ -112,6 +115,23 @@ void runDataset(const Settings& s, const Dataset& d) {
   }
   OptimizeOptions plain;
   const Timed clean = solve(original, plain, s.runs);
+  if (s.dump_only) {
+    writeGraph(clean.graph, s.dump + "/" + d.name + "_optimum.g2o");
+    writeGraph(original, s.dump + "/" + d.name + "_clean.g2o");
+    for (const std::string& kind_name : s.kinds) {
+      const OutlierKind kind = *outlierKindFromString(kind_name);
+      for (std::size_t count : kind == OutlierKind::kGrouped ? s.grouped_counts : s.counts) {
+        OutlierOptions o;
+        o.kind = kind;
+        o.count = count;
+        o.seed = s.seed;
+        writeGraph(addOutliers(original, o, &clean.graph).graph,
+                   s.dump + "/" + d.name + "_" + kind_name + "_" + std::to_string(count) + ".g2o");
+      }
+    }
+    std::printf("| %s | written to %s |\n", d.name, s.dump.c_str());
+    return;
+  }
   OptimizeOptions robust = plain;
   robust.robust = s.robust;
   robust.initial_guess = s.guess;
@@ -159,7 +179,7 @@ int usage() {
   std::fprintf(stderr,
                "usage: bench_robust [--datasets DIR] [--only A,B] [--kinds random,local,grouped] [--counts 100,500]\n"
                "                    [--grouped-counts 100] [--kernel dcs|cauchy|huber] [--width W] [--runs N]\n"
-               "                    [--seed S] [--guess odometry|chain]\n");
+               "                    [--seed S] [--guess odometry|chain] [--dump DIR [--dump-only]]\n");
   return 2;
 }
 
@@ -169,6 +189,10 @@ int main(int argc, char** argv) {
   Settings s;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
+    if (a == "--dump-only") {
+      s.dump_only = true;
+      continue;
+    }
     if (i + 1 >= argc) return usage();
     const std::string v = argv[++i];
     if (a == "--datasets") s.datasets = v;

@@ -1,8 +1,8 @@
 // Run-time tuning of a running pipeline (the node's dynamic_reconfigure server sends it as a
 // command to the worker, so it never races a pass).  Only options whose new value takes effect
 // cleanly from the next message or pass are taken; the rest (frames, covariance handling, the
-// matcher, persistence, the learning rate of the optimiser that already holds the graph) keep
-// the values the pipeline was built with.
+// matcher, persistence, the learning rate and robust kernel of the optimiser that already holds
+// the graph) keep the values the pipeline was built with.
 #include <algorithm>
 #include <limits>
 
@@ -25,8 +25,11 @@ std::string Pipeline::applyLiveOptions(const PipelineOptions& requested) {
   // The gate: the threshold applies to the next test (a loop closure on trial included).
   next.loop_closure_gate_confidence = requested.loop_closure_gate_confidence;
   next.loop_closure_gate_variance_factor = requested.loop_closure_gate_variance_factor;
-  // Robust estimation (being built on main): its live settings join here and in
-  // cfg/MapCorrector.cfg once merged.
+  // Robust loop closures: the kernel's width (the adaptation starts again from it) and the
+  // adaptation factor.  Not the kernel itself nor on/off: the optimiser's weights and
+  // preconditioner were built with them.
+  next.robust.width = requested.robust.width;
+  next.robust.adaptive_width_factor = requested.robust.adaptive_width_factor;
   const std::string error = next.validate();
   if (!error.empty()) return "invalid options: " + error;
 
@@ -41,7 +44,15 @@ std::string Pipeline::applyLiveOptions(const PipelineOptions& requested) {
                         ? toro::chiSquareQuantile(next.loop_closure_gate_confidence, 6) *
                               next.loop_closure_gate_variance_factor
                         : std::numeric_limits<double>::infinity();
+  const bool width_changed = next.robust.width != options_.robust.width;
   options_ = next;
+  if (width_changed && options_.robust.enabled()) {
+    // Every loop closure is weighed again with the new width, now.
+    robust_width_ = options_.robust.width;
+    optimizer_.setRobustWidth(robust_width_);
+    optimizer_.refreshWeights();
+    ++revision_;
+  }
   return "";
 }
 

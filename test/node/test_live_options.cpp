@@ -133,3 +133,28 @@ TEST(ApplyLiveOptions, ARoundInProgressEndsWithinTheNewNumberOfPasses) {
   EXPECT_FALSE(p.hasScheduledWork());
   EXPECT_FALSE(p.runScheduledOptimization());
 }
+
+TEST(ApplyLiveOptions, RobustWidthReweighsNowTheKernelStays) {
+  const auto scenario = makeDriftingSquare();
+  Pipeline p(toro_ros::testing::baseTestOptions());
+  ASSERT_TRUE(p.options().robust.enabled());  // on by default
+  for (const auto& m : scenario.odometry) p.handleOdometry(m);
+  p.handleLoopClosure(toro_ros::testing::trueLoopClosure(scenario, 0, scenario.odometry.size() - 1));
+  while (p.runScheduledOptimization()) {
+  }
+  const std::uint64_t revision = p.revision();
+  PipelineOptions o = p.options();
+  o.robust.width = 3.0;
+  o.robust.adaptive_width_factor = 0.0;
+  o.robust.kernel = toro::RobustKernel::kCauchy;  // not live
+  ASSERT_EQ(p.applyLiveOptions(o), "");
+  EXPECT_EQ(p.options().robust.width, 3.0);
+  EXPECT_EQ(p.options().robust.adaptive_width_factor, 0.0);
+  EXPECT_EQ(p.status().robust_width, 3.0);
+  EXPECT_EQ(p.optimizerOptions().robust.width, 3.0);
+  EXPECT_EQ(p.options().robust.kernel, toro::RobustKernel::kDcs);
+  EXPECT_GT(p.revision(), revision);  // the weights were refreshed: the snapshot shows it
+  o.robust.width = 0.0;               // invalid
+  EXPECT_NE(p.applyLiveOptions(o), "");
+  EXPECT_EQ(p.options().robust.width, 3.0);
+}

@@ -84,6 +84,8 @@ GateRun run(const Replay& r, double confidence, double variance_factor) {
   PipelineOptions po = loadNodeOptionsFile(kReplayConfig).pipeline;
   po.loop_closure_gate_confidence = confidence;
   po.loop_closure_gate_variance_factor = variance_factor;
+  // The gate alone: robust weights (on by default) would hide what the gate does and does not do.
+  po.robust.kernel = toro::RobustKernel::kNone;
   Pipeline p(po);
   std::vector<std::pair<ros::Time, std::size_t>> closures;
   for (std::size_t c = 0; c < r.graph.numConstraints(); ++c) {

@@ -1,0 +1,62 @@
+#!/usr/bin/env python3
+"""Compares a toro_offline run of a bag with wrong loop closures against the run of the clean bag
+(bench/run_robust_offline.sh): final position RMSE of each against the clean file's optimum after
+a rigid alignment, and how far the robot ever appeared apart in the two maps (robot_in_map of the
+summaries: map_T_odom after every odometry message applied to that message's pose).
+
+  compare_robust_runs.py OPTIMUM.g2o CLEAN_DIR OUTLIER_DIR      (prints one JSON object)
+"""
+import json
+import sys
+
+import numpy as np
+
+
+def positions(path):
+    """Vertex positions of a g2o file (3D or 2D), in id order."""
+    nodes = {}
+    with open(path) as f:
+        for line in f:
+            p = line.split()
+            if not p:
+                continue
+            if p[0] == "VERTEX_SE3:QUAT":
+                nodes[int(p[1])] = [float(p[2]), float(p[3]), float(p[4])]
+            elif p[0] == "VERTEX_SE2":
+                nodes[int(p[1])] = [float(p[2]), float(p[3]), 0.0]
+    return np.array([nodes[k] for k in sorted(nodes)])
+
+
+def aligned_rmse(a, b):
+    """RMSE of a against b after the rigid motion that best maps a onto b (Kabsch)."""
+    n = min(len(a), len(b))
+    a, b = a[:n], b[:n]
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return float(np.sqrt((((r @ (a - ca).T).T + cb - b) ** 2).sum(axis=1).mean()))
+
+
+def main():
+    optimum, clean_dir, outlier_dir = sys.argv[1:4]
+    reference = positions(optimum)
+    out = {}
+    for name, d in (("clean", clean_dir), ("outliers", outlier_dir)):
+        out[name + "_rmse_m"] = aligned_rmse(positions(d + "/corrected.g2o"), reference)
+        with open(d + "/summary.json") as f:
+            s = json.load(f)
+        out[name + "_wall_sec"] = s["wall_sec"]
+        out[name + "_down_weighted"] = s.get("loop_closures_down_weighted", 0)
+        out[name + "_applied"] = s["loop_closures_applied"]
+        out[name + "_trace"] = {round(t, 6): np.array([x, y, z]) for t, x, y, z in s["robot_in_map"]}
+    common = sorted(set(out["clean_trace"]) & set(out["outliers_trace"]))
+    gaps = [float(np.linalg.norm(out["clean_trace"][t] - out["outliers_trace"][t])) for t in common]
+    del out["clean_trace"], out["outliers_trace"]
+    out["max_gap_m"] = max(gaps) if gaps else None
+    out["samples"] = len(common)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
