@@ -52,30 +52,15 @@ configure() {
     -DPYTHON_EXECUTABLE="${PYTHON}" -DPython3_EXECUTABLE="${PYTHON}" </dev/null
 }
 
-# catkin writes the environment of tests and rostests (catkin_generated/setup_cached.sh) at configure
-# time and lists only devel folders that exist then.  In a fresh build directory the generated Python
-# messages (devel/lib/python3/dist-packages) and devel/lib appear only during the build, so Python
-# test nodes could not import toro_ros.msg/srv.  Configuring once more fixes the cached environment.
-cachedEnvironmentIsStale() {
-  local cached="${BUILD_DIR}/catkin_generated/setup_cached.sh" dir
-  [[ -f "${cached}" ]] || return 1
-  for dir in "${BUILD_DIR}/devel/lib" "${BUILD_DIR}/devel/lib/python3/dist-packages"; do
-    if [[ -d "${dir}" ]] && ! grep -qF "${dir}" "${cached}"; then return 0; fi
-  done
-  return 1
-}
-
 main() {
   cleanDevelEnvironment
   echo "build.sh: configuring ${REPO_ROOT} into ${BUILD_DIR} (${BUILD_TYPE})"
   configure
   echo "build.sh: building ${TARGETS[*]} with -j${JOBS}"
   # Test executables are not part of `all` in catkin; `tests` builds them.
+  # (The cached test environment is right from the first configure: CMakeLists.txt creates the
+  # devel folders it must list before catkin takes its snapshot.)
   cmake --build "${BUILD_DIR}" -j"${JOBS}" --target "${TARGETS[@]}" </dev/null
-  if cachedEnvironmentIsStale; then
-    echo "build.sh: configuring again so that the cached test environment lists the new devel folders"
-    configure
-  fi
 }
 
 main "$@"

@@ -20,6 +20,10 @@ TORO_APT_PACKAGES=(
   python3-geometry-msgs python3-nav-msgs python3-visualization-msgs python3-std-srvs
   python3-tf2-ros python3-tf2-geometry-msgs tf2-tools rviz xvfb imagemagick
   libdiagnostic-updater-dev
+  # run-time tuning (dynamic_reconfigure: C++ server/client, and the Python generator of
+  # cfg/MapCorrector.cfg) and the nodelet (library, and the nodelet manager binary)
+  libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
+  libnodeletlib-dev libnodelet-dev libnodeletlib-tools
   # maths, benchmarks, plots
   libsuitesparse-dev libbenchmark-dev python3-matplotlib python3-numpy
   # an optimised BLAS for CHOLMOD's supernodal factorisation (3-4x faster than the reference BLAS

@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Runs the tests under sanitizers (scripts/test.sh runs both stages before the normal build's ctest):
 #   address: the whole test suite (every ctest test, rostests included) in an ASan+UBSan build
-#            (TORO_ASAN_BUILD_DIR, default build-asan);
+#            (TORO_ASAN_BUILD_DIR, default build-asan), except graph_topics_nodelet.test: its
+#            nodelet manager is Debian's uninstrumented /usr/lib/nodelet/nodelet, which cannot load
+#            an ASan library (the runtime must come first); the same MapCorrectorNode and client
+#            run under ASan in graph_topics.test;
 #   thread:  the worker thread tests in a TSan build (TORO_TSAN_BUILD_DIR, default build-tsan):
 #            test_pipeline_worker (the node's worker thread without ROS transport: producers,
 #            service commands and snapshot readers on other threads while it applies and optimises).
@@ -82,7 +85,7 @@ runAddress() {
     ASAN_OPTIONS="${common}:detect_leaks=1:suppressions=${REPO_ROOT}/test/sanitizers/asan.supp" \
     LSAN_OPTIONS="suppressions=${REPO_ROOT}/test/sanitizers/lsan.supp" \
     UBSAN_OPTIONS="${common}:print_stacktrace=1:halt_on_error=1" \
-    ctest --output-on-failure </dev/null)
+    ctest --output-on-failure -E 'graph_topics_nodelet' </dev/null)
   stageTime "ASan+UBSan ctest" "${start}"
   checkReports "${build}" "ASan+UBSan"
 }

@@ -1,8 +1,9 @@
 // In-process profile of the worker's per-loop-closure work at 20,000 keyframes, on the graph of
 // bench_node_latency (a 500-keyframe circuit, a loop closure every 100 keyframes to one lap back):
 // the affected TORO pass (+ the g2o chi2 the pipeline computes after it), a Snapshot, and the chi2
-// alone, an autosave of the whole graph, and a ~save_graph over it (check + save).  No ROS
-// master, no threads.  Usage: bench_pipeline_step [keyframes]
+// alone, an autosave of the whole graph, a ~save_graph over it (check + save), and the ~graph
+// message (built and serialised, as the worker does at most visualization_rate_hz while it has
+// subscribers).  No ROS master, no threads.  Usage: bench_pipeline_step [keyframes]
 #include <unistd.h>
 
 #include <algorithm>
@@ -13,7 +14,10 @@
 #include <string>
 #include <vector>
 
+#include <ros/serialization.h>
+
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/node/graph_message.h"
 #include "toro_ros/pipeline/graph_directory.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 #include "toro_ros/pipeline/pipeline.h"
@@ -108,11 +112,27 @@ int main(int argc, char** argv) {
     std::filesystem::remove_all(dir);
     for (auto* v : {&save_ms, &check_ms, &service_save_ms}) std::sort(v->begin(), v->end());
   }
+  // ~graph: built from a snapshot and the pipeline, then serialised (roscpp does that in publish()).
+  const std::shared_ptr<const Snapshot> snapshot = p.makeSnapshot();
+  std::uint32_t graph_bytes = 0;
+  unsigned byte_sink = 0;  // keeps the serialisation from being optimised away
+  t0 = std::chrono::steady_clock::now();
+  for (int k = 0; k < kRepeats; ++k) {
+    const PoseGraph msg = graphMessage(p, *snapshot, "map");
+    graph_bytes = ros::serialization::serializationLength(msg);
+    std::vector<std::uint8_t> buffer(graph_bytes);
+    ros::serialization::OStream stream(buffer.data(), graph_bytes);
+    ros::serialization::serialize(stream, msg);
+    byte_sink += buffer[graph_bytes / 2];
+  }
+  const double graph_ms = msSince(t0) / kRepeats;
   std::printf("keyframes %zu, constraints %zu (chi2 %.3g)\n", p.keyframes().size(),
               p.graph().numConstraints(), sink / kRepeats);
   std::printf("affected pass + chi2, mean over the last quarter's loop closures: %.2f ms (n=%d)\n",
               affected_ms / affected_n, affected_n);
   std::printf("makeSnapshot: %.2f ms   g2oChi2 alone: %.2f ms\n", snapshot_ms, chi2_ms);
+  std::printf("~graph message: build + serialise %.2f ms, %u bytes (%.0f per keyframe) [%u]\n", graph_ms, graph_bytes,
+              static_cast<double>(graph_bytes) / static_cast<double>(p.keyframes().size()), byte_sink % 2);
   const auto median = [](const char* what, const std::vector<double>& ms) {
     if (ms.size() == 5) std::printf("%s: median %.1f ms of 5 (min %.1f, max %.1f)\n", what, ms[2], ms.front(), ms.back());
   };

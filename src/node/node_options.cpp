@@ -1,6 +1,7 @@
 #include "toro_ros/node/node_options.h"
 
 #include <cmath>
+#include <iomanip>
 #include <optional>
 #include <sstream>
 
@@ -83,7 +84,9 @@ class ParamReader {
       report_->errors.push_back(std::string(key) + ": expected " + expected + ", got '" + got.str() + "'");
     }
     std::ostringstream line;
-    line << key << " = " << std::boolalpha << v << (given ? "" : " (default)");
+    // 12 significant digits: enough for every value a user types, and live changes are found by
+    // comparing these lines (live_options.cpp).
+    line << key << " = " << std::boolalpha << std::setprecision(12) << v << (given ? "" : " (default)");
     report_->values.push_back(line.str());
   }
 
@@ -151,8 +154,9 @@ std::string NodeOptions::validate() const {
   if (queue_size <= 0) return "queue_size must be > 0";
   if (!(service_timeout_sec > 0 && std::isfinite(service_timeout_sec)))
     return "service_timeout_sec must be > 0";
-  const std::string p = pipeline.validate();
-  return p.empty() ? markers.validate() : p;
+  for (const std::string& e : {pipeline.validate(), markers.validate(), diagnostics.validate()})
+    if (!e.empty()) return e;
+  return "";
 }
 
 NodeOptions loadNodeOptions(const XmlRpc::XmlRpcValue& params, OptionsReport* report) {
@@ -173,6 +177,8 @@ NodeOptions loadNodeOptions(const XmlRpc::XmlRpcValue& params, OptionsReport* re
   r.read("marker_edge_width_m", o.markers.edge_width_m);
   r.read("marker_loop_closure_chi2_red", o.markers.loop_closure_chi2_red);
   r.read("marker_draw_odometry_edges", o.markers.draw_odometry_edges);
+  r.read("diagnostics_stale_odometry_sec", o.diagnostics.stale_odometry_sec);
+  r.read("diagnostics_max_refusals_per_sec", o.diagnostics.max_refusals_per_sec);
   r.finish();
   o.pipeline.odom_frame = o.odom_frame;  // the pipeline refuses odometry in another frame
   if (report->errors.empty()) {

@@ -4,10 +4,15 @@
 
 namespace toro_ros {
 
-PipelineWorker::PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t queue_capacity, ErrorSink on_error)
-    : pipeline_(std::move(pipeline)), on_error_(std::move(on_error)), queue_(queue_capacity) {
+PipelineWorker::PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t queue_capacity,
+                               ErrorSink on_error, SnapshotObserver observer)
+    : pipeline_(std::move(pipeline)),
+      on_error_(std::move(on_error)),
+      observer_(std::move(observer)),
+      queue_(queue_capacity) {
   if (!pipeline_) throw std::invalid_argument("PipelineWorker needs a pipeline");
   snapshot_ = pipeline_->makeSnapshot();
+  if (observer_) observer_(*pipeline_, *snapshot_);
   thread_ = std::thread(&PipelineWorker::loop, this);
 }
 
@@ -31,6 +36,13 @@ std::shared_ptr<const Snapshot> PipelineWorker::snapshot() const {
 
 void PipelineWorker::publishSnapshot() {
   std::shared_ptr<const Snapshot> s = pipeline_->makeSnapshot();
+  if (observer_) {
+    try {
+      observer_(*pipeline_, *s);
+    } catch (const std::exception& e) {
+      if (on_error_) on_error_(std::string("snapshot observer failed: ") + e.what());
+    }
+  }
   std::lock_guard<std::mutex> lock(snapshot_mutex_);
   snapshot_.swap(s);
 }

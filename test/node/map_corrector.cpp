@@ -2,29 +2,15 @@
 // drifting square of test/pipeline/drift_scenario.h and loop closures, and checks what the node
 // publishes and answers.  The tests run in declaration order and share the node's state.
 #include <unistd.h>
-#include <atomic>
-#include <condition_variable>
 #include <filesystem>
 #include <fstream>
-#include <functional>
-#include <mutex>
 #include <set>
 #include <sstream>
-#include <thread>
 
-#include <diagnostic_msgs/DiagnosticArray.h>
 #include <gtest/gtest.h>
-#include <nav_msgs/Path.h>
-#include <ros/ros.h>
-#include <rosgraph_msgs/Clock.h>
-#include <std_srvs/Trigger.h>
-#include <tf2_msgs/TFMessage.h>
-#include <visualization_msgs/MarkerArray.h>
 
 #include "../pipeline/drift_scenario.h"
-#include "toro_ros/GetStatus.h"
-#include "toro_ros/GraphFile.h"
-#include "toro_ros/Optimize.h"
+#include "node_test_client.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/pipeline/persistence.h"
 #include "toro_ros/pipeline/pipeline.h"
@@ -33,144 +19,8 @@ using namespace toro_ros;
 
 namespace {
 
-constexpr double kTimeoutSec = 20.0;
-
-// Latest messages seen by the subscriptions, with a condition variable to wait on.
-struct Observed {
-  std::mutex mutex;  // guards everything below
-  std::condition_variable cv;
-  std::optional<geometry_msgs::TransformStamped> map_T_odom;
-  // Largest (stamp - our /clock at arrival) of the transforms since tf_count was reset.
-  double max_ahead = -1e9;
-  int tf_count = 0;
-  std::optional<nav_msgs::Path> path;
-  std::optional<visualization_msgs::MarkerArray> markers;
-  bool saw_delete_all = false;
-  std::optional<diagnostic_msgs::DiagnosticStatus> diagnostics;
-};
-
-class Client {
- public:
-  Client() {
-    clock_pub_ = nh_.advertise<rosgraph_msgs::Clock>("/clock", 10);
-    odom_pub_ = nh_.advertise<nav_msgs::Odometry>("odom", 1000);
-    loop_pub_ = nh_.advertise<LoopClosure>("loop_closure", 100);
-    tf_sub_ = nh_.subscribe("/tf", 100, &Client::onTf, this);
-    path_sub_ = nh_.subscribe("/map_corrector/path", 10, &Client::onPath, this);
-    markers_sub_ = nh_.subscribe("/map_corrector/graph_markers", 10, &Client::onMarkers, this);
-    diagnostics_sub_ = nh_.subscribe("/diagnostics", 10, &Client::onDiagnostics, this);
-    // Simulated time advances 1:1 with wall time unless odometry pushes it ahead.
-    clock_thread_ = std::thread([this] {
-      while (!stop_) {
-        const double now = std::max(clock_sec_.load(), last_published_ + 0.005);
-        rosgraph_msgs::Clock c;
-        c.clock = ros::Time(now);
-        clock_pub_.publish(c);
-        last_published_ = now;
-        std::this_thread::sleep_for(std::chrono::milliseconds(5));
-      }
-    });
-  }
-  ~Client() {
-    stop_ = true;
-    clock_thread_.join();
-  }
-
-  void setClock(const ros::Time& t) {
-    if (t.toSec() > clock_sec_) clock_sec_ = t.toSec();
-  }
-  double clock() const { return last_published_; }
-
-  // Polls `pred` (cheap, or a service call) until true or the timeout.
-  static bool waitFor(const std::function<bool()>& pred, double timeout_sec = kTimeoutSec) {
-    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_sec);
-    while (std::chrono::steady_clock::now() < end) {
-      if (pred()) return true;
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    return pred();
-  }
-  // Waits on the subscriptions' condition variable.
-  bool waitObserved(const std::function<bool(const Observed&)>& pred, double timeout_sec = kTimeoutSec) {
-    std::unique_lock<std::mutex> lock(observed.mutex);
-    return observed.cv.wait_for(lock, std::chrono::duration<double>(timeout_sec),
-                                [&] { return pred(observed); });
-  }
-
-  bool connect() {
-    return waitFor([&] {
-             return odom_pub_.getNumSubscribers() > 0 && loop_pub_.getNumSubscribers() > 0 &&
-                    path_sub_.getNumPublishers() > 0 && markers_sub_.getNumPublishers() > 0;
-           }) &&
-           ros::service::waitForService("/map_corrector/get_status", ros::Duration(kTimeoutSec));
-  }
-
-  void publishOdometry(const nav_msgs::Odometry& m) {
-    setClock(m.header.stamp);
-    odom_pub_.publish(m);
-    // Pacing, not synchronisation: keeps the burst within the node's subscriber queue.
-    std::this_thread::sleep_for(std::chrono::milliseconds(1));
-  }
-  void publishLoopClosure(const LoopClosure& m) { loop_pub_.publish(m); }
-
-  GetStatus::Response status() {
-    GetStatus srv;
-    EXPECT_TRUE(ros::service::call("/map_corrector/get_status", srv));
-    return srv.response;
-  }
-  bool trigger(const std::string& name) {
-    std_srvs::Trigger srv;
-    return ros::service::call("/map_corrector/" + name, srv) && srv.response.success;
-  }
-  GraphFile::Response graphFile(const std::string& name, const std::string& path) {
-    GraphFile srv;
-    srv.request.path = path;
-    EXPECT_TRUE(ros::service::call("/map_corrector/" + name, srv));
-    return srv.response;
-  }
-
-  Observed observed;
-
- private:
-  void onTf(const tf2_msgs::TFMessage::ConstPtr& msg) {
-    for (const auto& t : msg->transforms) {
-      if (t.header.frame_id != "map" || t.child_frame_id != "odom") continue;
-      std::lock_guard<std::mutex> lock(observed.mutex);
-      observed.map_T_odom = t;
-      observed.max_ahead = std::max(observed.max_ahead, t.header.stamp.toSec() - last_published_);
-      ++observed.tf_count;
-      observed.cv.notify_all();
-    }
-  }
-  void onPath(const nav_msgs::Path::ConstPtr& msg) {
-    std::lock_guard<std::mutex> lock(observed.mutex);
-    observed.path = *msg;
-    observed.cv.notify_all();
-  }
-  void onDiagnostics(const diagnostic_msgs::DiagnosticArray::ConstPtr& msg) {
-    for (const auto& status : msg->status) {
-      if (status.name.find("map corrector") == std::string::npos) continue;
-      std::lock_guard<std::mutex> lock(observed.mutex);
-      observed.diagnostics = status;
-      observed.cv.notify_all();
-    }
-  }
-  void onMarkers(const visualization_msgs::MarkerArray::ConstPtr& msg) {
-    std::lock_guard<std::mutex> lock(observed.mutex);
-    observed.markers = *msg;
-    if (!msg->markers.empty() && msg->markers[0].action == visualization_msgs::Marker::DELETEALL)
-      observed.saw_delete_all = true;
-    observed.cv.notify_all();
-  }
-
-  ros::NodeHandle nh_;
-  ros::Publisher clock_pub_, odom_pub_, loop_pub_;
-  ros::Subscriber tf_sub_, path_sub_, markers_sub_, diagnostics_sub_;
-  std::atomic<double> clock_sec_{99.0};
-  std::atomic<double> last_published_{99.0};
-  std::atomic<bool> stop_{false};
-  std::thread clock_thread_;
-};
+using Client = toro_ros::testing::NodeTestClient;
+using toro_ros::testing::Observed;
 
 Client* client = nullptr;
 const toro_ros::testing::DriftScenario scenario = toro_ros::testing::makeDriftingSquare();

@@ -1,10 +1,14 @@
 // The shipped config against the options loader: every key known, every known key documented,
 // unknown keys and wrong types reported.  No master needed.
+#include <cctype>
 #include <fstream>
+#include <iterator>
+#include <set>
 #include <sstream>
 
 #include <gtest/gtest.h>
 
+#include "toro_ros/node/live_options.h"
 #include "toro_ros/node/node_options.h"
 #include "toro_ros/offline/flat_yaml.h"
 
@@ -95,4 +99,62 @@ TEST(NodeOptions, WrongTypesAndInvalidValuesAreErrorsNamingTheKey) {
   loadNodeOptions(bad_range, &r2);
   ASSERT_EQ(r2.errors.size(), 1u);
   EXPECT_NE(r2.errors[0].find("angle_rad"), std::string::npos);
+}
+
+// The message and service definitions document the node's interface in their comments: every
+// "~name" they mention must be a parameter, topic or service the node has (they once named
+// ~loop_closure/stamp_tolerance_sec and ~optimization/full_iterations, which never existed).
+TEST(NodeOptions, EveryPrivateNameInTheMessageAndServiceCommentsExists) {
+  std::set<std::string> names = knownParameterKeys();
+  for (const char* n : {"path", "graph_markers", "graph", "pose", "optimize", "pause", "resume", "reset",
+                        "save_graph", "load_graph", "get_status", "set_parameters"})
+    names.insert(n);
+  std::size_t mentioned = 0;
+  for (const char* file : {"msg/LoopClosure.msg", "msg/PoseGraph.msg", "msg/PoseGraphNode.msg", "msg/PoseGraphEdge.msg",
+                           "srv/Optimize.srv", "srv/GraphFile.srv", "srv/GetStatus.srv"}) {
+    std::ifstream in(std::string(TORO_SOURCE_DIR) + "/" + file);
+    ASSERT_TRUE(in.good()) << file;
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    for (std::size_t at = text.find('~'); at != std::string::npos; at = text.find('~', at + 1)) {
+      if (at + 1 < text.size() && text[at + 1] == '/') continue;  // a home directory, "~/.ros"
+      std::size_t end = at + 1;
+      while (end < text.size() && (std::isalnum(static_cast<unsigned char>(text[end])) || text[end] == '_' || text[end] == '/'))
+        ++end;
+      const std::string name = text.substr(at + 1, end - at - 1);
+      ++mentioned;
+      EXPECT_TRUE(names.count(name)) << file << " names ~" << name << ", which the node does not have";
+    }
+  }
+  EXPECT_GE(mentioned, 8u);
+}
+
+// README.md's "Node API" lists the parameters by group: every known key, and nothing else, and
+// marks as "live" exactly those of cfg/MapCorrector.cfg.
+TEST(NodeOptions, TheReadmeNodeApiListsEveryParameter) {
+  std::ifstream in(std::string(TORO_SOURCE_DIR) + "/README.md");
+  ASSERT_TRUE(in.good());
+  const std::string readme((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::size_t begin = readme.find("\n## Node API");
+  ASSERT_NE(begin, std::string::npos);
+  const std::size_t table = readme.find("| group | parameter | default | live |", begin);
+  ASSERT_NE(table, std::string::npos);
+  const std::size_t end = readme.find("\n\n", table);
+  std::set<std::string> listed, marked_live;
+  std::istringstream rows(readme.substr(table, end - table));
+  std::string row;
+  while (std::getline(rows, row)) {
+    // "| group | `key` ... | default | live |": the first back-quoted word of the second cell.
+    const std::size_t cell = row.find('|', 1);
+    const std::size_t open = row.find('`', cell), close = row.find('`', open + 1);
+    if (cell == std::string::npos || open == std::string::npos || close == std::string::npos) continue;
+    const std::string key = row.substr(open + 1, close - open - 1);
+    listed.insert(key);
+    const std::string live_cell = " live |";
+    if (row.size() >= live_cell.size() && row.compare(row.size() - live_cell.size(), live_cell.size(), live_cell) == 0)
+      marked_live.insert(key);
+  }
+  EXPECT_EQ(marked_live, liveParameterKeys());
+  const std::set<std::string> known = knownParameterKeys();
+  for (const std::string& key : known) EXPECT_TRUE(listed.count(key)) << key << " is not in README.md's Node API";
+  for (const std::string& key : listed) EXPECT_TRUE(known.count(key)) << "README.md's Node API lists " << key;
 }

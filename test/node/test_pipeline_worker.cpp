@@ -238,3 +238,37 @@ TEST(PipelineWorker, PipelineIsOnlyHandedOutAfterStop) {
   EXPECT_TRUE(worker.pipeline().graph().empty());
   EXPECT_THROW(PipelineWorker(nullptr, 10, nullptr), std::invalid_argument);
 }
+
+// The snapshot observer sees every snapshot on the worker thread together with the pipeline it
+// was made from, nothing in between (what ~graph relies on); post() runs a command without waiting.
+TEST(PipelineWorker, ObserverSeesEachSnapshotWithTheStateItWasMadeFrom) {
+  const DriftScenario s = makeDriftingSquare();
+  std::atomic<int> calls{0}, mismatches{0};
+  std::atomic<std::uint64_t> last_generation{0};
+  std::atomic<bool> out_of_order{false};
+  Errors errors;
+  PipelineWorker worker(std::make_unique<Pipeline>(options()), 100000, errors.sink(),
+                        [&](const Pipeline& p, const Snapshot& snap) {
+                          ++calls;
+                          if (snap.keyframes.size() != p.keyframes().size() ||
+                              snap.edges.size() != p.graph().numConstraints())
+                            ++mismatches;
+                          if (snap.generation <= last_generation) out_of_order = true;
+                          last_generation = snap.generation;
+                        });
+  EXPECT_EQ(calls, 1);  // the first snapshot, made in the constructor
+  for (const auto& m : s.odometry) worker.push(message(m));
+  worker.push(message(trueLoopClosure(s, 0, s.odometry.size() - 1)));
+  std::promise<std::size_t> posted;
+  worker.post([&posted](Pipeline& p) { posted.set_value(p.keyframes().size()); });
+  std::future<std::size_t> keyframes = posted.get_future();
+  ASSERT_EQ(keyframes.wait_for(kAnswer), std::future_status::ready);
+  EXPECT_GT(keyframes.get(), 20u);
+  ASSERT_TRUE(worker.call<bool>([](Pipeline&) { return true; }, kAnswer).has_value());
+  worker.stop();
+  EXPECT_GT(calls, 2);
+  EXPECT_EQ(mismatches, 0);
+  EXPECT_FALSE(out_of_order);
+  EXPECT_EQ(worker.snapshot()->generation, last_generation);
+  EXPECT_TRUE(errors.texts.empty());
+}

@@ -8,9 +8,11 @@ namespace names {
 constexpr const char* kOdometryTopic = "odom";
 constexpr const char* kLoopClosureTopic = "loop_closure";
 
-// Published in the private namespace (latched).
-constexpr const char* kPathTopic = "path";
-constexpr const char* kMarkersTopic = "graph_markers";
+// Published in the private namespace.
+constexpr const char* kPathTopic = "path";              // nav_msgs/Path, latched
+constexpr const char* kMarkersTopic = "graph_markers";  // visualization_msgs/MarkerArray, latched
+constexpr const char* kGraphTopic = "graph";            // toro_ros/PoseGraph, latched
+constexpr const char* kPoseTopic = "pose";              // geometry_msgs/PoseWithCovarianceStamped
 
 // Services in the private namespace.
 constexpr const char* kOptimizeService = "optimize";
@@ -20,6 +22,8 @@ constexpr const char* kResetService = "reset";
 constexpr const char* kSaveGraphService = "save_graph";
 constexpr const char* kLoadGraphService = "load_graph";
 constexpr const char* kGetStatusService = "get_status";
+// dynamic_reconfigure adds set_parameters (service) and parameter_descriptions /
+// parameter_updates (topics) in the private namespace.
 
 }  // namespace names
 }  // namespace toro_ros

@@ -8,6 +8,7 @@
 
 #include <xmlrpcpp/XmlRpcValue.h>
 
+#include "toro_ros/node/input_health.h"
 #include "toro_ros/pipeline/pipeline.h"
 #include "toro_ros/pipeline/visualization.h"
 
@@ -32,6 +33,7 @@ struct NodeOptions {
   std::string graph_directory;
   PipelineOptions pipeline;
   MarkerOptions markers;
+  InputHealthOptions diagnostics;  // when the diagnostics WARN or ERROR about the input
   std::string validate() const;
 };
 

@@ -27,10 +27,17 @@ class PipelineWorker {
  public:
   using Command = std::function<void(Pipeline&)>;
   using ErrorSink = std::function<void(const std::string&)>;
+  // Sees every snapshot the moment it is made, with the pipeline it was made from (read only), on
+  // the thread that made it: for outputs that need more than a Snapshot holds (the ~graph
+  // message: measurements and covariances), built consistently with it and without a copy of
+  // the graph.  It must not block; what it does delays the worker.
+  using SnapshotObserver = std::function<void(const Pipeline&, const Snapshot&)>;
 
   // Takes the pipeline (nobody else may touch it until stop()) and starts the thread.  `on_error`
   // gets the text of an exception a message or command threw (a bug: the worker goes on).
-  PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t queue_capacity, ErrorSink on_error);
+  // `observer` (optional) is called for the first snapshot here, then on the worker thread.
+  PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t queue_capacity, ErrorSink on_error,
+                 SnapshotObserver observer = nullptr);
   ~PipelineWorker();  // stop()
 
   PipelineWorker(const PipelineWorker&) = delete;
@@ -44,6 +51,9 @@ class PipelineWorker {
   // Commands are never dropped by the queue bound: each has a caller waiting for it.
   template <class R>
   std::optional<R> call(std::function<R(Pipeline&)> f, std::chrono::duration<double> timeout);
+  // Runs `f` on the worker between passes without waiting for it (never dropped); a snapshot is
+  // published after it, as after every command.
+  void post(Command f) { queue_.pushAlways(Item(std::move(f))); }
 
   // The newest published state; never blocks on the worker.
   std::shared_ptr<const Snapshot> snapshot() const;
@@ -63,6 +73,7 @@ class PipelineWorker {
 
   std::unique_ptr<Pipeline> pipeline_;  // touched only by the worker thread until stop()
   ErrorSink on_error_;
+  SnapshotObserver observer_;
   InputQueue<Item> queue_;
   std::atomic<bool> stopped_{false};
   mutable std::mutex snapshot_mutex_;  // guards snapshot_ (the pointer, not the pointee)

@@ -179,6 +179,11 @@ class Pipeline {
   const PipelineOptions& options() const { return options_; }
   // The options of the pipeline's TORO optimiser now (gamma, robust kernel with the adapted width).
   toro::TreeOptimizerOptions optimizerOptions() const;
+  // Run-time tuning (pipeline_live_options.cpp): takes from `options` the values that are safe
+  // to change while running (keyframe thresholds, the optimisation schedule, the gate, the robust
+  // kernel's width and its adaptation) and keeps the others.  Empty string on success; else why
+  // not, and nothing changed.
+  std::string applyLiveOptions(const PipelineOptions& options);
   // Changes whenever what a snapshot shows changes (keyframes, constraints, poses, counters of
   // refusals, resets); not for odometry that makes no keyframe.  Publishers compare it.
   std::uint64_t revision() const { return revision_; }

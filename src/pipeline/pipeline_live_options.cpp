@@ -1,0 +1,59 @@
+// Run-time tuning of a running pipeline (the node's dynamic_reconfigure server sends it as a
+// command to the worker, so it never races a pass).  Only options whose new value takes effect
+// cleanly from the next message or pass are taken; the rest (frames, covariance handling, the
+// matcher, persistence, the learning rate and robust kernel of the optimiser that already holds
+// the graph) keep the values the pipeline was built with.
+#include <algorithm>
+#include <limits>
+
+#include "toro_ros/core/chi_square.h"
+#include "toro_ros/pipeline/pipeline.h"
+
+namespace toro_ros {
+
+std::string Pipeline::applyLiveOptions(const PipelineOptions& requested) {
+  PipelineOptions next = options_;
+  // Keyframe thresholds: the next odometry message is measured against them.
+  next.keyframer.distance_m = requested.keyframer.distance_m;
+  next.keyframer.angle_rad = requested.keyframer.angle_rad;
+  next.keyframer.interval_sec = requested.keyframer.interval_sec;
+  // The schedule: read at every call of runScheduledOptimization / optimize.
+  next.optimization.full_iterations = requested.optimization.full_iterations;
+  next.optimization.full_every_keyframes = requested.optimization.full_every_keyframes;
+  next.optimization.full_every_sec = requested.optimization.full_every_sec;
+  next.optimization.service_default_iterations = requested.optimization.service_default_iterations;
+  // The gate: the threshold applies to the next test (a loop closure on trial included).
+  next.loop_closure_gate_confidence = requested.loop_closure_gate_confidence;
+  next.loop_closure_gate_variance_factor = requested.loop_closure_gate_variance_factor;
+  // Robust loop closures: the kernel's width (the adaptation starts again from it) and the
+  // adaptation factor.  Not the kernel itself nor on/off: the optimiser's weights and
+  // preconditioner were built with them.
+  next.robust.width = requested.robust.width;
+  next.robust.adaptive_width_factor = requested.robust.adaptive_width_factor;
+  const std::string error = next.validate();
+  if (!error.empty()) return "invalid options: " + error;
+
+  // The keyframer keeps its reference keyframe; only its thresholds change.
+  Keyframer keyframer(next.keyframer);
+  if (keyframer_.last()) keyframer.setLast(*keyframer_.last());
+  keyframer_ = keyframer;
+  // A round in progress does not run more passes than a round now has.
+  full_passes_left_ = std::min(full_passes_left_, next.optimization.full_iterations);
+  // The same threshold as the constructor computes.
+  gate_threshold_ = next.loop_closure_gate_confidence > 0
+                        ? toro::chiSquareQuantile(next.loop_closure_gate_confidence, 6) *
+                              next.loop_closure_gate_variance_factor
+                        : std::numeric_limits<double>::infinity();
+  const bool width_changed = next.robust.width != options_.robust.width;
+  options_ = next;
+  if (width_changed && options_.robust.enabled()) {
+    // Every loop closure is weighed again with the new width, now.
+    robust_width_ = options_.robust.width;
+    optimizer_.setRobustWidth(robust_width_);
+    optimizer_.refreshWeights();
+    ++revision_;
+  }
+  return "";
+}
+
+}  // namespace toro_ros
