@@ -45,7 +45,8 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
       options_(loadOptions(private_nh, &unknown_parameters_)),
       diagnostics_(nh, private_nh) {
   auto pipeline = std::make_unique<Pipeline>(
-      options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); });
+      options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); },
+      [](const std::string& i) { ROS_INFO_STREAM("map corrector: " << i); });
   // Before the worker takes the pipeline; throws, stopping the node, if load_path exists but
   // cannot be loaded, rather than start empty and autosave over it.
   const std::string resumed = loadOnStart(*pipeline, options_.load_path);
@@ -183,6 +184,12 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   status.add("loop closures readmitted", s->counters.loop_closures_readmitted);
   // The same counts as ~get_status's refused_reasons/refused_counts, one key per reason.
   for (const auto& [reason, count] : s->counters.refused_by_reason) status.add("refused: " + reason, count);
+  status.add("odometry steps with default covariance (all / some axes)",
+             std::to_string(s->counters.odometry_steps_default) + " / " +
+                 std::to_string(s->counters.odometry_steps_partly_default));
+  status.add("loop closures with default covariance (all / some axes)",
+             std::to_string(s->counters.loop_closures_default) + " / " +
+                 std::to_string(s->counters.loop_closures_partly_default));
   status.add("autosaves", s->counters.autosaves);
   status.add("autosave failures", s->counters.autosave_failures);
   status.add("last chi2", s->chi2);

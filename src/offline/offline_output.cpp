@@ -122,6 +122,14 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
       << ",\n  \"loop_closures_refused\": " << k.loop_closures_refused
       << ",\n  \"loop_closures_pending\": " << s.status.pending_loop_closures
       << ",\n  \"optimization_passes\": " << k.optimization_passes
+      << ",\n  \"odometry_covariance_rule\": " << jsonString(s.status.odometry_covariance_rule)
+      << ",\n  \"odometry_steps_default\": " << k.odometry_steps_default
+      << ",\n  \"odometry_steps_partly_default\": " << k.odometry_steps_partly_default
+      << ",\n  \"odometry_steps_repaired\": " << k.odometry_steps_repaired
+      << ",\n  \"loop_closure_covariance_rule\": " << jsonString(s.status.loop_closure_covariance_rule)
+      << ",\n  \"loop_closures_default_covariance\": " << k.loop_closures_default
+      << ",\n  \"loop_closures_partly_default_covariance\": " << k.loop_closures_partly_default
+      << ",\n  \"loop_closures_repaired_covariance\": " << k.loop_closures_repaired
       << ",\n  \"final_iterations\": " << s.run.final_result.iterations
       << ",\n  \"chi2_odometry\": " << num(s.chi2_odometry)
       << ",\n  \"chi2_corrected\": " << num(s.chi2_corrected) << ",\n  \"refused_by_reason\": {";

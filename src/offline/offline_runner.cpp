@@ -74,10 +74,13 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
     : options_(options), node_options_(loadNodeOptionsFile(options.config_path)) {
   const std::string invalid = options.validate();
   if (!invalid.empty()) throw std::invalid_argument(invalid);
-  pipeline_ = std::make_unique<Pipeline>(node_options_.pipeline, [this](const std::string& w) {
-    if (warnings_.size() < kMaxPrintedWarnings) std::cerr << "\nwarning: " << w << '\n';
-    warnings_.push_back(w);
-  });
+  pipeline_ = std::make_unique<Pipeline>(
+      node_options_.pipeline,
+      [this](const std::string& w) {
+        if (warnings_.size() < kMaxPrintedWarnings) std::cerr << "\nwarning: " << w << '\n';
+        warnings_.push_back(w);
+      },
+      [](const std::string& i) { std::cerr << "\n" << i << '\n'; });
   const std::string resumed = loadOnStart(*pipeline_, node_options_.load_path);
   if (!resumed.empty()) std::cerr << resumed << '\n';
 }

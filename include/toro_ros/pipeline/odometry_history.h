@@ -1,6 +1,7 @@
-// The recent odometry, so that a loop closure naming a stamp between keyframes can be moved onto
-// the keyframe it is matched to: keyframe_T_stamp = odom_T_keyframe^-1 * odom_T_stamp, with the pose
-// at the stamp interpolated between the two odometry messages around it.
+// The recent full-rate odometry, so that a loop closure naming a stamp between keyframes can be moved
+// onto the keyframe it is attached to: keyframe_T_stamp = odom_T_keyframe^-1 * odom_T_stamp, with the
+// pose at the stamp interpolated between the two odometry messages around it.  Older stamps use the
+// keyframes' odometry poses instead (KeyframeIndex::odometryAt, Pipeline::odometryPoseAt).
 #pragma once
 
 #include <deque>
