@@ -59,7 +59,7 @@ void writeErrorJson(std::ostream& out, const char* name, const TrajectoryError& 
   out << "    " << jsonString(name) << ": {\"poses\": " << e.poses << ", \"rmse_m\": " << num(e.rmse_m)
       << ", \"mean_m\": " << num(e.mean_m) << ", \"max_m\": " << num(e.max_m)
       << ", \"final_m\": " << num(e.final_m) << ", \"mean_rotation_rad\": " << num(e.mean_rotation_rad)
-      << "}";
+      << ", \"rmse_aligned_m\": " << num(e.rmse_aligned_m) << "}";
 }
 
 void writeKeyframesJson(std::ostream& out, Pipeline& p, const OfflineOptions& options) {

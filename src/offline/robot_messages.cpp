@@ -47,7 +47,9 @@ void addCovariances(const toro::PoseGraph& graph, RobotTimeline* t) {
     }
     t->step_covariance.push_back(covariance);
     const toro::Matrix6 b = blockRotation(t->odom_T_base[k + 1]);
-    t->covariance.push_back(t->covariance.back() + b * t->step_covariance.back() * b.transpose());
+    const toro::Vector3 displacement = t->odom_T_base[k + 1].translation() - t->odom_T_base[k].translation();
+    t->covariance.push_back(carriedCovariance(t->covariance.back(), displacement) +
+                            b * t->step_covariance.back() * b.transpose());
   }
 }
 
@@ -78,7 +80,8 @@ nav_msgs::Odometry odometryAtSample(const RobotTimeline& t, long sample, const G
     if (f > 0) {
       pose = toro::slerp(t.odom_T_base[k], t.odom_T_base[k + 1], f);
       const toro::Matrix6 b = blockRotation(pose);
-      covariance += f * b * t.step_covariance[k] * b.transpose();
+      covariance = carriedCovariance(covariance, pose.translation() - t.odom_T_base[k].translation()) +
+                   f * b * t.step_covariance[k] * b.transpose();
     }
     // Body-frame velocity of the current step (constant over the step).
     const toro::Pose3 step = toro::relativePose(t.odom_T_base[k], t.odom_T_base[k + 1]);

@@ -148,6 +148,13 @@ InformationResult informationFromCovariance(const toro::Matrix6& covariance, con
   return informationFromAxes(covariance, readAxes(covariance, unmeasured_variance), defaults);
 }
 
+toro::Matrix6 carriedCovariance(const toro::Matrix6& covariance, const toro::Vector3& displacement) {
+  toro::Matrix6 carry = toro::Matrix6::Identity();
+  carry.block<3, 3>(0, 3) << 0, displacement.z(), -displacement.y(), -displacement.z(), 0, displacement.x(),
+      displacement.y(), -displacement.x(), 0;
+  return carry * covariance * carry.transpose();
+}
+
 std::string axisNames(const AxisReadings& axes, AxisReading reading) {
   std::string out;
   for (int i = 0; i < 6; ++i)

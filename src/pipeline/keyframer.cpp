@@ -29,14 +29,20 @@ bool sameCovariance(const toro::Matrix6& a, const toro::Matrix6& b) {
   return true;
 }
 
-// kDifference: the growth of the covariance, read on the axes where it is meaningful.  An axis that
+// kDifference: the growth of the covariance over the step, covariance(newer) - F covariance(older)
+// F^T with F carrying the older one to the newer pose (carriedCovariance: an EKF's prediction; the
+// plain difference of a real EKF's covariances is indefinite in most steps, because a heading
+// error before the step moves the newer position sideways), read on the axes where it is meaningful.  An axis that
 // grew is read from its growth, however large the accumulated variance (dead reckoning's grows
 // without bound).  One that did not grow says nothing about the step: unmeasured if the sender
 // marks it so (a variance >= the threshold, e.g. pinned at 1e6), else unknown and the default (an
 // EKF's two_d_mode z, roll and pitch held at 1e-6 or 0; a variance an absolute fix shrank).
 InformationResult differenceInformation(const toro::Matrix6& older, const toro::Matrix6& newer,
-                                        const KeyframerOptions& o) {
-  toro::Matrix6 difference = newer - older;
+                                        const toro::Vector3& displacement, const KeyframerOptions& o) {
+  // The older covariance carried to the newer pose first, as an EKF's prediction carries it, so
+  // the heading uncertainty accumulated before the step does not count as the step's.
+  const toro::Matrix6 carried = older.allFinite() ? carriedCovariance(older, displacement) : older;
+  toro::Matrix6 difference = newer - carried;
   const AxisReadings read_newer = readAxes(newer, o.unmeasured_variance);
   const AxisReadings read_older = readAxes(older, o.unmeasured_variance);
   AxisReadings axes;
@@ -191,7 +197,8 @@ InformationResult Keyframer::stepInformation(const OdometrySample& older, const 
     case OdometryCovarianceMode::kDifference:
       // A reference from a loaded graph has a NaN covariance (it is not saved): its axes are
       // unknown, so the step takes the defaults there.
-      out = differenceInformation(older.covariance, newer.covariance, options_);
+      out = differenceInformation(older.covariance, newer.covariance,
+                                  newer.odom_T_base.translation() - older.odom_T_base.translation(), options_);
       out.information = toBodyFrame(out.information, newer.odom_T_base);
       return out;
     case OdometryCovarianceMode::kMotionScaled:

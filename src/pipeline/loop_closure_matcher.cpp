@@ -47,7 +47,7 @@ std::optional<toro::NodeId> KeyframeIndex::attach(const ros::Time& stamp, double
   const auto after = std::lower_bound(records_.begin(), records_.end(), stamp,
                                       [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
   if (after == records_.end()) return records_.back().id;
-  if (after == records_.begin() || after->stamp == stamp || after->odometry_restarted)
+  if (after == records_.begin() || after->stamp == stamp || after->after_gap)
     return nearest(stamp, tolerance_sec);
   const KeyframeRecord& before = *(after - 1);
   return (stamp - before.stamp) <= (after->stamp - stamp) ? before.id : after->id;
@@ -58,7 +58,7 @@ std::optional<toro::Pose3> KeyframeIndex::odometryAt(const ros::Time& stamp) con
   const auto after = std::lower_bound(records_.begin(), records_.end(), stamp,
                                       [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
   if (after->stamp == stamp) return after->odom_T_base;
-  if (after->odometry_restarted) return std::nullopt;
+  if (after->after_gap) return std::nullopt;
   const KeyframeRecord& before = *(after - 1);
   const double fraction = (stamp - before.stamp).toSec() / (after->stamp - before.stamp).toSec();
   return toro::slerp(before.odom_T_base, after->odom_T_base, fraction);
@@ -66,13 +66,13 @@ std::optional<toro::Pose3> KeyframeIndex::odometryAt(const ros::Time& stamp) con
 
 std::optional<toro::NodeId> KeyframeIndex::next(toro::NodeId id) const {
   const KeyframeRecord* r = find(id);
-  if (r == nullptr || r == &records_.back() || (r + 1)->odometry_restarted) return std::nullopt;
+  if (r == nullptr || r == &records_.back() || (r + 1)->after_gap) return std::nullopt;
   return (r + 1)->id;
 }
 
 std::optional<toro::NodeId> KeyframeIndex::previous(toro::NodeId id) const {
   const KeyframeRecord* r = find(id);
-  if (r == nullptr || r == &records_.front() || r->odometry_restarted) return std::nullopt;
+  if (r == nullptr || r == &records_.front() || r->after_gap) return std::nullopt;
   return (r - 1)->id;
 }
 
@@ -119,8 +119,8 @@ MatchResult LoopClosureMatcher::matchNow(const LoopClosure& msg, const KeyframeI
     for (const auto& [id, stamp] : {std::pair{from, msg.stamp_from}, std::pair{to, msg.stamp_to}})
       if (!id)
         return refused(refusal::kNoKeyframe,
-                       "stamp " + stampString(stamp) + " is before the first keyframe or in a gap where the "
-                       "odometry restarted, and no keyframe is within " +
+                       "stamp " + stampString(stamp) + " is before the first keyframe or in a gap of the "
+                       "trajectory (before a resumed map's new odometry), and no keyframe is within " +
                            std::to_string(options_.stamp_tolerance_sec) + " s of it");
     if (*from == *to) {
       // Two stamps nearest to one keyframe: the later end moves on to the next keyframe (or the

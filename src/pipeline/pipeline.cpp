@@ -178,8 +178,8 @@ void Pipeline::appendKeyframe(const OdometrySample& sample, const std::optional<
   const toro::NodeId previous = keyframes_.empty() ? -1 : keyframes_.newest().id;
   optimizer_.addNode(id, pose);
   ++revision_;
-  keyframes_.append(KeyframeRecord{id, sample.stamp, sample.odom_T_base, next_keyframe_restarts_odometry_});
-  next_keyframe_restarts_odometry_ = false;
+  keyframes_.append(KeyframeRecord{id, sample.stamp, sample.odom_T_base, next_keyframe_after_gap_});
+  next_keyframe_after_gap_ = false;
   if (last_full_stamp_.isZero()) last_full_stamp_ = sample.stamp;
   ++keyframes_since_full_;
   if (!step) return;
@@ -419,7 +419,7 @@ void Pipeline::clearGraph() {
   last_chi2_ = kNaN;
   applied_messages_.clear();
   resume_after_.reset();
-  next_keyframe_restarts_odometry_ = false;
+  next_keyframe_after_gap_ = false;
   loaded_until_ = ros::Time();
   ++counters_.resets;
   ++epoch_;

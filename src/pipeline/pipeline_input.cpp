@@ -17,7 +17,7 @@ std::optional<toro::Pose3> Pipeline::odometryPoseAt(const ros::Time& stamp) cons
   if (const auto pose = odometry_history_.at(stamp)) return pose;
   if (const auto pose = keyframes_.odometryAt(stamp)) return pose;
   // Between the newest keyframe and the newest odometry (the history may be off or shorter).
-  if (keyframes_.empty() || !last_odometry_ || next_keyframe_restarts_odometry_) return std::nullopt;
+  if (keyframes_.empty() || !last_odometry_ || next_keyframe_after_gap_) return std::nullopt;
   const KeyframeRecord& newest = keyframes_.newest();
   if (stamp <= newest.stamp || stamp > last_odometry_->stamp) return std::nullopt;
   const double fraction = (stamp - newest.stamp).toSec() / (last_odometry_->stamp - newest.stamp).toSec();

@@ -119,10 +119,10 @@ std::string Pipeline::loadGraph(const std::string& path) {
   last_full_stamp_ = newest.stamp;
   next_id_ = newest.id + 1;
   resume_after_ = loaded_until_ = newest.stamp;
-  // The saved odometry poses are in the new run's frame only if it continues the saved run's
-  // odometry and the saved keyframes have stamps (a graph without its sidecar has none).
-  next_keyframe_restarts_odometry_ =
-      options_.persistence.resume_link == ResumeLink::kLastPose || newest.stamp.isZero();
+  // Whatever the resume link, the odometry between the saved newest keyframe and the first new one
+  // was not seen (the node was down; with last_pose it is even in another frame): no stamp in
+  // that gap is interpolated.
+  next_keyframe_after_gap_ = true;
   // What was just loaded is on disk already; the next autosave waits for a change.
   autosaved_revision_ = revision_;
   last_autosave_stamp_ = newest.stamp;

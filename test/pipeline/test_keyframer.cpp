@@ -156,13 +156,24 @@ TEST(Keyframer, AConstantCovarianceStandingStillCountsAsTheMinimumMotion) {
   EXPECT_NEAR(step->information.information(0, 0), 1 / (1e-3 * kMinMotionScale), 1e-6);
 }
 
-TEST(Keyframer, AutoReadsAGrowingCovarianceAsTheDifferenceOnTheAxesThatGrew) {
-  // robot_localization in two_d_mode: x, y and yaw grow, z/roll/pitch stay at 1e-6.
+TEST(Keyframer, AutoReadsAGrowingCovarianceAsItsGrowthOverTheStepOnTheAxesThatGrew) {
+  // robot_localization in two_d_mode: x, y and yaw propagated as an EKF does (the heading
+  // uncertainty grows into the position across the motion), z/roll/pitch held at 1e-6.  Each
+  // message adds `added` (x, y, yaw) to the carried covariance; the keyframe step must read the
+  // sum of what was added, not the plain difference (which also holds the carried heading error).
   Keyframer k(options());
+  toro::Matrix6 added = toro::Matrix6::Zero();
+  added.diagonal() << 1e-4, 4e-5, 0, 0, 0, 2e-5;
+  toro::Matrix6 p = toro::Matrix6::Zero();
+  p.diagonal() << 0.01, 0.01, 1e-6, 1e-6, 1e-6, 0.02;  // the state before the step: uncertain
   std::vector<OdometrySample> s;
   for (int i = 0; i <= 6; ++i) {
     s.push_back(sample(1 + 0.1 * i, 0.1 * i, 0.0));
-    s.back().covariance = diagonalCovariance(0.01 + 1e-3 * i, 1e-6, 0.02 + 1e-4 * i);
+    if (i > 0) {
+      p = carriedCovariance(p, toro::Vector3(0.1, 0, 0)) + added;
+      p(2, 2) = p(3, 3) = p(4, 4) = 1e-6;  // two_d_mode holds them
+    }
+    s.back().covariance = p;
   }
   const auto step = stepAfter(k, s);
   EXPECT_EQ(k.convention(), OdometryCovarianceConvention::kGrowing);
@@ -171,9 +182,17 @@ TEST(Keyframer, AutoReadsAGrowingCovarianceAsTheDifferenceOnTheAxesThatGrew) {
   EXPECT_EQ(axisNames(info.axes, AxisReading::kUnknown), "z roll pitch");  // did not grow: defaults
   EXPECT_EQ(info.default_axes, 3);
   EXPECT_FALSE(info.used_default);
-  EXPECT_NEAR(info.information(0, 0), 1 / 6e-3, 1e-6);
-  EXPECT_NEAR(info.information(5, 5), 4 / 6e-4, 1e-6);
+  // What the six messages added, carried to the keyframe: x 6e-4; yaw 1.2e-4; y 2.4e-4 plus the
+  // added yaw variances carried over the rest of the step (sum over i of 2e-5 (0.1 (6 - i))^2).
+  double y = 6 * 4e-5;
+  for (int i = 1; i <= 6; ++i) y += 2e-5 * std::pow(0.1 * (6 - i), 2);
+  const toro::Matrix6 covariance = toro::quaternionToAngleUnits(info.information).inverse();
+  EXPECT_NEAR(covariance(0, 0), 6e-4, 1e-12);
+  EXPECT_NEAR(covariance(5, 5), 1.2e-4, 1e-12);
+  EXPECT_NEAR(covariance(1, 1), y, 1e-12);
   EXPECT_NEAR(info.information(2, 2), 1 / (0.05 * 0.05), 1e-6);  // the default translation stddev
+  // The plain difference would have read 0.02 * 0.6^2 = 7.2e-3 of carried heading error into y.
+  EXPECT_LT(covariance(1, 1), 1e-3);
   EXPECT_NE(k.ruleDescription().find("changes between messages"), std::string::npos) << k.ruleDescription();
 }
 
@@ -182,7 +201,7 @@ TEST(Keyframer, AGrowingCovarianceBeyondTheUnmeasuredThresholdIsStillItsGrowth) 
   KeyframerOptions o = options();
   o.covariance_mode = OdometryCovarianceMode::kDifference;
   Keyframer k(o);
-  OdometrySample a = sample(1, 0, 0), b = sample(2, 1, 0);
+  OdometrySample a = sample(1, 0, 0), b = sample(11, 0, 0);  // a keyframe by time, standing still
   a.covariance = 5e3 * toro::Matrix6::Identity();
   b.covariance = (5e3 + 0.01) * toro::Matrix6::Identity();
   k.accept(a);
@@ -203,7 +222,7 @@ TEST(Keyframer, AnIndefiniteDifferenceIsRepairedNotThrownAway) {
   KeyframerOptions o = options();
   o.covariance_mode = OdometryCovarianceMode::kDifference;
   Keyframer k(o);
-  OdometrySample a = sample(1, 0, 0), b = sample(2, 1, 0);
+  OdometrySample a = sample(1, 0, 0), b = sample(11, 0, 0);  // standing still: nothing carried
   a.covariance = diagonalCovariance(0.01, 1e-6, 0.01);
   b.covariance = diagonalCovariance(0.02, 1e-6, 0.02);
   a.covariance(0, 5) = a.covariance(5, 0) = -0.008;

@@ -1,7 +1,7 @@
 // Loop closures named by stamps anywhere on the trajectory (issue 11, item 4): a front end names the
 // stamps of its own scans, not our keyframes.  Each stamp attaches to the nearest keyframe and the
 // measurement is moved onto it with the odometry between; only stamps before the first keyframe or
-// across an odometry restart are refused.
+// in the gap before a resumed map's new odometry are refused.
 #include <gtest/gtest.h>
 
 #include <unistd.h>
@@ -135,14 +135,15 @@ TEST(StampAttachment, TheToleranceGuardsStampsBeforeTheFirstKeyframe) {
   EXPECT_EQ(c.refused_by_reason.at("loop closure: no keyframe within tolerance"), 1u);
 }
 
-TEST(StampAttachment, NothingIsInterpolatedAcrossAnOdometryRestart) {
-  // A map saved and resumed with resume_link last_pose: the new odometry starts again at its own
-  // origin 30 s later.  A stamp in the gap matches neither run; one in the new run is attached.
+// A map saved at 10 s and resumed at 40 s: the odometry between was never seen (the node was down;
+// with last_pose the new odometry even starts again at its own origin).  A stamp in the gap matches
+// neither run; one in the new run is attached.
+void checkGapBeforeAResumedMap(ResumeLink link) {
   char dir_template[] = "/tmp/toro_stamps_XXXXXX";
   const std::string dir = mkdtemp(dir_template);
   const std::string path = dir + "/map.g2o";
   PipelineOptions o = defaultsWithHistory(60.0);
-  o.persistence.resume_link = ResumeLink::kLastPose;
+  o.persistence.resume_link = link;
   {
     Pipeline first(o);
     for (int i = 0; i <= 200; ++i)
@@ -151,25 +152,30 @@ TEST(StampAttachment, NothingIsInterpolatedAcrossAnOdometryRestart) {
   }
   Pipeline p(o);
   ASSERT_EQ(p.loadGraph(path), "");
-  const double restart = 40.0;  // the saved run ended at 10 s
-  for (int i = 0; i <= 200; ++i)
-    p.handleOdometry(odometryMsg(ros::Time(kStart + restart + i / kRate), circleAt(i / kRate)));
-  LoopClosure in_gap = trueLoopClosure(5.0, 25.0);   // 25 s: between the runs
+  const double restart = 40.0;
+  for (int i = 0; i <= 200; ++i) {
+    const double t = restart + i / kRate;
+    p.handleOdometry(odometryMsg(ros::Time(kStart + t), circleAt(link == ResumeLink::kContinue ? t : t - restart)));
+  }
+  LoopClosure in_gap = trueLoopClosure(5.0, 25.0);  // 25 s: between the runs
   in_gap.header.stamp = ros::Time(kStart + restart + 10.05);
   LoopClosure in_new = trueLoopClosure(5.0, restart + 5.03);  // a scan of the new run
   in_new.header.stamp = in_gap.header.stamp;
-  in_new.from_T_to = poseToMsg(toro::Pose3());  // (its value does not matter here)
   p.handleLoopClosure(in_gap);
   p.handleLoopClosure(in_new);
   const PipelineCounters c = p.status().counters;
-  EXPECT_EQ(c.loop_closures_applied, 1u);
+  EXPECT_EQ(c.loop_closures_applied, 1u) << toString(link);
   EXPECT_EQ(c.refused_by_reason.at("loop closure: no keyframe within tolerance"), 1u);
   // The first new keyframe is marked: nothing is interpolated between it and the saved newest.
-  const auto& records = p.keyframes().records();
-  std::size_t restarts = 0;
-  for (const KeyframeRecord& k : records) restarts += k.odometry_restarted;
-  EXPECT_EQ(restarts, 1u);
+  std::size_t gaps = 0;
+  for (const KeyframeRecord& k : p.keyframes().records()) gaps += k.after_gap;
+  EXPECT_EQ(gaps, 1u);
   std::filesystem::remove_all(dir);
+}
+
+TEST(StampAttachment, NothingIsInterpolatedAcrossTheGapBeforeAResumedMap) {
+  checkGapBeforeAResumedMap(ResumeLink::kLastPose);
+  checkGapBeforeAResumedMap(ResumeLink::kContinue);
 }
 
 }  // namespace

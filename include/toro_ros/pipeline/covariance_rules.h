@@ -71,6 +71,11 @@ InformationResult informationFromAxes(const toro::Matrix6& covariance, const Axi
 InformationResult informationFromCovariance(const toro::Matrix6& covariance, const DefaultStddev& defaults,
                                             double unmeasured_variance = kDefaultUnmeasuredVariance);
 
+// A pose covariance (odom frame, translation then rotation about X Y Z) carried over a displacement
+// of the position, as an EKF's prediction carries it: a rotation error d_theta at the start moves
+// the end by d_theta x displacement (F = [I, -[displacement]x; 0, I], Sigma -> F Sigma F^T).
+toro::Matrix6 carriedCovariance(const toro::Matrix6& covariance, const toro::Vector3& displacement);
+
 // "x y z" style list of the axes with the given reading ("" if none).
 std::string axisNames(const AxisReadings& axes, AxisReading reading);
 // One line: "measured x y yaw; unmeasured z roll pitch (variance >= 1000)"; unknown ones too.

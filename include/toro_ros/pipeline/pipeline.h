@@ -245,9 +245,9 @@ class Pipeline {
   std::unordered_set<std::uint64_t> applied_messages_;  // hashes of applied loop-closure messages
   // Persistence: set by loadGraph until newer odometry arrives; the last autosave.
   std::optional<ros::Time> resume_after_;
-  // The next keyframe's odometry is not the previous keyframe's frame (after a last_pose resume or
-  // a load without stamps): it is marked so that nothing is interpolated across the gap.
-  bool next_keyframe_restarts_odometry_ = false;
+  // The odometry before the next keyframe was not seen (it is the first after a load): it is marked
+  // after_gap so that nothing is interpolated across the gap.
+  bool next_keyframe_after_gap_ = false;
   ros::Time loaded_until_;  // newest keyframe stamp of the last load (input up to it is refused)
   ros::Time last_autosave_stamp_;
   std::uint64_t autosaved_revision_ = 0;
