@@ -61,7 +61,7 @@ replayDemo() {
     source "${BUILD_DIR}/devel/setup.bash"
     export PYENV_VERSION=system ROS_HOSTNAME=localhost ROS_MASTER_URI="http://localhost:${port}"
     timeout 300 roslaunch -p "${port}" toro_ros replay.launch bag:="${SAMPLE_BAG}" rate:=2 \
-      config:="${REPO_ROOT}/config/replay_sample.yaml" output:="${OUT_DIR}/replay/corrected.g2o" </dev/null >"${log}" 2>&1
+      config:="${REPO_ROOT}/config/replay_sample.yaml" output_dir:="${OUT_DIR}/replay" </dev/null >"${log}" 2>&1
   ) || true
   if ! grep -q "^replay_finish: corrected graph written" "${log}"; then
     echo "the replay did not finish; its log: ${log}" >&2

@@ -6,8 +6,9 @@ poses vs the corrected ones, and the error against the truth when graph_to_bag w
 up the robot's final corrected pose map -> base_link on /tf, and publishes a one-line result on
 ~result (latched) for tests.
 
-Private parameters: bag (path, required), node (default /map_corrector), output (g2o path, default
-/tmp/toro_replay/corrected.g2o), truth ('' = <bag stem>.truth.g2o if it exists), final_iterations
+Private parameters: bag (path, required), node (default /map_corrector), output_dir (the node's
+graph_directory, absolute, default /tmp/toro_replay: ~save_graph takes a name relative to it),
+output_name (default corrected.g2o: the graph saved in output_dir, with its .stamps), truth ('' = <bag stem>.truth.g2o if it exists), final_iterations
 (default 20; 0 = none), odom_topic (default /odom: the finisher waits until the node has
 received as many odometry messages as the bag has on it), settle_sec (default 0.5: the node's status must stay unchanged this long),
 exit_when_done (default true: shut the launch down when done; false keeps rviz up).
@@ -80,7 +81,10 @@ def main():
     rospy.init_node('replay_finish')
     bag = rospy.get_param('~bag')
     node = rospy.get_param('~node', '/map_corrector').rstrip('/')
-    output = os.path.abspath(rospy.get_param('~output', '/tmp/toro_replay/corrected.g2o'))
+    # ~save_graph takes a name relative to the node's graph_directory (replay.launch gives the node
+    # output_dir as that directory), so the graph lands in output_dir.
+    output_name = rospy.get_param('~output_name', 'corrected.g2o')
+    output = os.path.join(os.path.abspath(rospy.get_param('~output_dir', '/tmp/toro_replay')), output_name)
     truth = rospy.get_param('~truth', '')
     stem = bag[:-4] if bag.endswith('.bag') else bag
     if not truth and os.path.exists(stem + '.truth.g2o'):
@@ -105,8 +109,7 @@ def main():
         r = rospy.ServiceProxy(node + '/optimize', Optimize)(iterations, 'full')
         rospy.loginfo('replay_finish: ~optimize %d: chi2 %.6g -> %.6g (%s)', iterations, r.chi2_before,
                       r.chi2_after, r.message)
-    os.makedirs(os.path.dirname(output), exist_ok=True)
-    saved = rospy.ServiceProxy(node + '/save_graph', GraphFile)(output)
+    saved = rospy.ServiceProxy(node + '/save_graph', GraphFile)(output_name)
     if not saved.success:
         rospy.logerr('replay_finish: ~save_graph failed: %s', saved.message)
         result_pub.publish(String('failed: ' + saved.message))

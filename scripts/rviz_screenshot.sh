@@ -40,7 +40,7 @@ trap 'rm -rf "$work"' EXIT
 
 xvfb-run -a -s "-screen 0 1280x900x24" bash -c '
   roslaunch -p '"$port"' toro_ros replay.launch bag:='"$bag"' config:='"$CONFIG"' rviz:=true rate:='"$rate"' \
-    exit_when_done:=false output:='"$work"'/corrected.g2o > '"$work"'/launch.log 2>&1 &
+    exit_when_done:=false output_dir:='"$work"' > '"$work"'/launch.log 2>&1 &
   launch=$!
   for _ in $(seq 100); do rostopic list >/dev/null 2>&1 && break; sleep 0.2; done
   if timeout 150 rostopic echo -n 1 /replay_finish/result > '"$work"'/result.txt 2>/dev/null; then

@@ -1,7 +1,8 @@
 // In-process profile of the worker's per-loop-closure work at 20,000 keyframes, on the graph of
 // bench_node_latency (a 500-keyframe circuit, a loop closure every 100 keyframes to one lap back):
 // the affected TORO pass (+ the g2o chi2 the pipeline computes after it), a Snapshot, and the chi2
-// alone, and an autosave of the whole graph.  No ROS master, no threads.  Usage: bench_pipeline_step [keyframes]
+// alone, an autosave of the whole graph, and a ~save_graph over it (check + save).  No ROS
+// master, no threads.  Usage: bench_pipeline_step [keyframes]
 #include <unistd.h>
 
 #include <algorithm>
@@ -13,6 +14,7 @@
 #include <vector>
 
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/pipeline/graph_directory.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 #include "toro_ros/pipeline/pipeline.h"
 
@@ -78,8 +80,10 @@ int main(int argc, char** argv) {
   const double chi2_ms = msSince(t0) / kRepeats;
   // An autosave: graph + sidecar to temporary files, fsync, rename (what the worker does every
   // autosave_period_sec); median of 5.
+  // Then ~save_graph over that save: GraphDirectory::forSave (resolve the name, open the
+  // directory, read the existing graph and sidecar to check they may be replaced) and the save.
   char dir[] = "/tmp/toro_bench_save_XXXXXX";
-  std::vector<double> save_ms;
+  std::vector<double> save_ms, check_ms, service_save_ms;
   if (mkdtemp(dir) != nullptr) {
     for (int k = 0; k < 5; ++k) {
       t0 = std::chrono::steady_clock::now();
@@ -87,15 +91,33 @@ int main(int argc, char** argv) {
       save_ms.push_back(msSince(t0));
       if (!error.empty()) std::printf("save failed: %s\n", error.c_str());
     }
+    const GraphDirectory graphs(dir);
+    for (int k = 0; k < 5; ++k) {
+      t0 = std::chrono::steady_clock::now();
+      const ConfinedFile target = graphs.forSave("map.g2o");
+      check_ms.push_back(msSince(t0));
+      if (!target.file) {
+        std::printf("forSave refused: %s\n", target.error.c_str());
+        break;
+      }
+      t0 = std::chrono::steady_clock::now();
+      const std::string error = p.saveGraph(*target.file);
+      service_save_ms.push_back(msSince(t0));
+      if (!error.empty()) std::printf("save failed: %s\n", error.c_str());
+    }
     std::filesystem::remove_all(dir);
-    std::sort(save_ms.begin(), save_ms.end());
+    for (auto* v : {&save_ms, &check_ms, &service_save_ms}) std::sort(v->begin(), v->end());
   }
   std::printf("keyframes %zu, constraints %zu (chi2 %.3g)\n", p.keyframes().size(),
               p.graph().numConstraints(), sink / kRepeats);
   std::printf("affected pass + chi2, mean over the last quarter's loop closures: %.2f ms (n=%d)\n",
               affected_ms / affected_n, affected_n);
   std::printf("makeSnapshot: %.2f ms   g2oChi2 alone: %.2f ms\n", snapshot_ms, chi2_ms);
-  if (!save_ms.empty()) std::printf("saveGraph (autosave): median %.1f ms of 5 (min %.1f, max %.1f)\n",
-                                    save_ms[2], save_ms.front(), save_ms.back());
+  const auto median = [](const char* what, const std::vector<double>& ms) {
+    if (ms.size() == 5) std::printf("%s: median %.1f ms of 5 (min %.1f, max %.1f)\n", what, ms[2], ms.front(), ms.back());
+  };
+  median("saveGraph (autosave)", save_ms);
+  median("~save_graph check (GraphDirectory::forSave over the existing pair)", check_ms);
+  median("~save_graph save (confined file)", service_save_ms);
   return 0;
 }

@@ -15,6 +15,7 @@
 #include "toro_ros/core/finish_residuals.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/pose_graph.h"
+#include "toro_ros/core/robust_kernel.h"
 
 namespace toro {
 namespace detail {
@@ -73,23 +74,58 @@ class FinishProblem {
   using Mat = typename Model::Mat;
 
   // Copies states and constraints; repairs information that is not positive definite (counted).
-  FinishProblem(const PoseGraph& graph, LinearSolverType solver);
+  // With `robust` enabled, loop closures (isLoopClosure) enter as rho(chi2) (robust_kernel.h): the
+  // objective is sum rho, the normal equations are weighted by rho'(chi2) at the linearisation
+  // point (iteratively reweighted least squares; rho'' is left out, as g2o and Ceres do).
+  // Robust edges whose weight at the start is below `set_aside_weight` are left out of the problem
+  // (a wrong loop closure between far-apart poses would only add fill-in to the factorisation and
+  // contribute ~nothing); setAsideRegained() tells whether any of them regained weight.
+  FinishProblem(const PoseGraph& graph, LinearSolverType solver, const RobustOptions& robust = {},
+                double set_aside_weight = 0.0);
 
   std::size_t numFree() const { return static_cast<std::size_t>(b_.size()) / D; }
   std::size_t numHeld() const { return held_count_; }
   std::size_t repairedInformation() const { return repaired_; }
   std::vector<State>& states() { return states_; }
 
+  // The objective at `states`: sum of chi2, with rho(chi2) for robust edges.
   double cost(const std::vector<State>& states) const {
-    double chi2 = 0.0;
+    double total = 0.0;
     for (const Edge& e : edges_) {
       const Vec r = Model::error(states[e.i], states[e.j], e.z);
-      chi2 += r.dot(e.information * r);
+      const double chi2 = r.dot(e.information * r);
+      total += e.robust ? robustCost(robust_, chi2) : chi2;
     }
-    return chi2;
+    return total;
+  }
+  // Plain chi2 of all edges (set-aside ones included) at states() and, per constraint index, its
+  // weight rho'(chi2) (1 unless robust).
+  double plainChi2(std::vector<double>* weights) const {
+    double total = 0.0;
+    if (weights) weights->assign(edges_.size() + set_aside_.size(), 1.0);
+    for (const std::vector<Edge>* list : {&edges_, &set_aside_}) {
+      for (const Edge& e : *list) {
+        const Vec r = Model::error(states_[e.i], states_[e.j], e.z);
+        const double chi2 = r.dot(e.information * r);
+        total += chi2;
+        if (weights && e.robust) (*weights)[e.index] = robustWeight(robust_, chi2);
+      }
+    }
+    return total;
+  }
+  std::size_t numSetAside() const { return set_aside_.size(); }
+  // How many set-aside edges have a weight of at least `weight` at states().
+  std::size_t setAsideRegained(double weight) const {
+    std::size_t n = 0;
+    for (const Edge& e : set_aside_) {
+      const Vec r = Model::error(states_[e.i], states_[e.j], e.z);
+      n += robustWeight(robust_, r.dot(e.information * r)) >= weight ? 1 : 0;
+    }
+    return n;
   }
 
-  // chi2 at states(), and the normal equations there: H = J^T Omega J (upper), b = J^T Omega e.
+  // The objective at states(), and the normal equations there: H = J^T W Omega J (upper),
+  // b = J^T W Omega e, W the robust weights (1 without robust edges).
   double linearize();
   const Eigen::VectorXd& b() const { return b_; }
   double maxDiagonal() const { return diagonal_.size() ? diagonal_.maxCoeff() : 0.0; }
@@ -120,10 +156,12 @@ class FinishProblem {
 
  private:
   struct Edge {
+    std::size_t index = 0;     // constraint index in the graph
     std::size_t i = 0, j = 0;  // dense node indices
     int bi = -1, bj = -1;      // state blocks, -1 when held
     State z;
     Mat information;
+    bool robust = false;  // a loop closure under the robust kernel
     std::array<int, D> diag_i{}, diag_j{}, off{};
   };
 
@@ -131,11 +169,13 @@ class FinishProblem {
   void addUpper(const std::array<int, D>& offsets, const Mat& block);
   void addFull(const std::array<int, D>& offsets, const Mat& block);
 
+  RobustOptions robust_;
   std::vector<State> states_;
   std::vector<int> block_;
   std::size_t held_count_ = 0;
   std::size_t repaired_ = 0;
   std::vector<Edge> edges_;
+  std::vector<Edge> set_aside_;  // robust edges left out (see the constructor)
   SparseMatrix h_;
   Eigen::VectorXd b_, diagonal_;
   std::vector<int> diagonal_index_;
@@ -144,7 +184,9 @@ class FinishProblem {
 };
 
 template <class Model>
-FinishProblem<Model>::FinishProblem(const PoseGraph& graph, LinearSolverType solver) {
+FinishProblem<Model>::FinishProblem(const PoseGraph& graph, LinearSolverType solver, const RobustOptions& robust,
+                                    double set_aside_weight)
+    : robust_(robust) {
   const std::vector<bool> held = heldNodes(graph);
   int free_blocks = 0;
   for (std::size_t n = 0; n < graph.numNodes(); ++n) {
@@ -152,8 +194,10 @@ FinishProblem<Model>::FinishProblem(const PoseGraph& graph, LinearSolverType sol
     block_.push_back(held[n] ? -1 : free_blocks++);
     held_count_ += held[n] ? 1 : 0;
   }
-  for (const Constraint& c : graph.constraints()) {
+  for (std::size_t index = 0; index < graph.numConstraints(); ++index) {
+    const Constraint& c = graph.constraints()[index];
     Edge e;
+    e.index = index;
     e.i = graph.indexOf(c.from);
     e.j = graph.indexOf(c.to);
     e.bi = block_[e.i];
@@ -165,6 +209,14 @@ FinishProblem<Model>::FinishProblem(const PoseGraph& graph, LinearSolverType sol
     if (Eigen::LLT<Matrix6>(information).info() != Eigen::Success && repairInformation(information))
       ++repaired_;
     e.information = Model::informationOf(information);
+    e.robust = robust_.enabled() && isLoopClosure(c);
+    if (e.robust && set_aside_weight > 0.0) {
+      const Vec r = Model::error(states_[e.i], states_[e.j], e.z);
+      if (robustWeight(robust_, r.dot(e.information * r)) < set_aside_weight) {
+        set_aside_.push_back(e);
+        continue;
+      }
+    }
     edges_.push_back(e);
   }
   b_.setZero(free_blocks * D);
@@ -224,15 +276,27 @@ template <class Model>
 double FinishProblem<Model>::linearize() {
   std::fill(h_.valuePtr(), h_.valuePtr() + h_.nonZeros(), 0.0);
   b_.setZero();
-  double chi2 = 0.0;
+  double objective = 0.0;
   typename Model::Lin lin;
+  Mat scaled;
   for (const Edge& e : edges_) {
     Model::linearize(states_[e.i], states_[e.j], e.z, &lin);
-    const Vec weighted_error = e.information * lin.error;
-    chi2 += lin.error.dot(weighted_error);
-    const Mat w_to = e.information * lin.d_to;
+    Vec weighted_error = e.information * lin.error;
+    const double chi2 = lin.error.dot(weighted_error);
+    const Mat* information_ptr = &e.information;
+    if (e.robust) {
+      objective += robustCost(robust_, chi2);
+      const double weight = robustWeight(robust_, chi2);
+      weighted_error *= weight;
+      scaled = weight * e.information;
+      information_ptr = &scaled;
+    } else {
+      objective += chi2;
+    }
+    const Mat& information = *information_ptr;
+    const Mat w_to = information * lin.d_to;
     if (e.bi >= 0) {
-      const Mat w_from = e.information * lin.d_from;
+      const Mat w_from = information * lin.d_from;
       addUpper(e.diag_i, lin.d_from.transpose() * w_from);
       b_.template segment<D>(e.bi * D) += lin.d_from.transpose() * weighted_error;
       if (e.bj >= 0) {
@@ -246,7 +310,7 @@ double FinishProblem<Model>::linearize() {
     }
   }
   for (int k = 0; k < diagonal_.size(); ++k) diagonal_[k] = h_.valuePtr()[diagonal_index_[k]];
-  return chi2;
+  return objective;
 }
 
 template <class Model>

@@ -28,13 +28,6 @@ std::string extensionOf(const std::string& path) {
   return ext;
 }
 
-GraphFormat formatFromExtension(const std::string& path) {
-  const std::string ext = extensionOf(path);
-  if (ext == ".g2o") return GraphFormat::kG2o;
-  if (ext == ".graph" || ext == ".toro") return GraphFormat::kToro;
-  return GraphFormat::kAuto;
-}
-
 bool isSpace(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\v' || c == '\f'; }
 
 bool isTag(std::string_view token) {
@@ -92,7 +85,9 @@ void LineReader::checkText(std::string_view text, std::size_t number) const {
       std::ostringstream s;
       s << "binary data (byte 0x" << std::hex << static_cast<int>(c) << std::dec << " at column " << i + 1
         << "): not a text graph file";
-      throw ParseError(source_, number, s.str());
+      throw ParseError(source_, number, s.str(),
+                       "binary data (a control character at column " + std::to_string(i + 1) +
+                           "): not a text graph file");
     }
   }
 }
@@ -118,10 +113,9 @@ void LineReader::processLine(std::string_view text, std::size_t number) {
   }
   const std::string_view tag = tokens_[0];
   if (!isTag(tag)) {
-    std::string shown(tag.substr(0, 40));
-    throw ParseError(
-        source_, number,
-        "'" + shown + "' is not a tag (a data line starts with a tag such as VERTEX_SE3:QUAT or EDGE3)");
+    constexpr const char* kExpected = "(a data line starts with a tag such as VERTEX_SE3:QUAT or EDGE3)";
+    throw ParseError(source_, number, excerpt(tag) + " is not a tag " + kExpected,
+                     std::string("the line does not start with a tag ") + kExpected);
   }
   const bool g2o = detail::isG2oTag(tag);
   if (!g2o && !detail::isToroTag(tag)) {
@@ -209,8 +203,38 @@ void addFixes(const detail::ParsedLines& parsed, const std::string& source, Pose
 }
 }  // namespace
 
-ParseError::ParseError(const std::string& file, std::size_t line, const std::string& message)
-    : std::runtime_error(locate(file, line) + ": " + message), file_(file), line_(line), message_(message) {}
+ParseError::ParseError(const std::string& file, std::size_t line, const std::string& message,
+                       const std::string& redacted_message)
+    : std::runtime_error(locate(file, line) + ": " + message),
+      file_(file),
+      line_(line),
+      message_(message),
+      redacted_message_(redacted_message.empty() ? message : redacted_message),
+      redacted_what_(locate(file, line) + ": " + redacted_message_) {}
+
+std::string excerpt(std::string_view text) {
+  static constexpr char kHex[] = "0123456789abcdef";
+  std::string out = "'";
+  for (std::size_t i = 0; i < text.size() && i < kMaxExcerpt; ++i) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    if (c >= 0x20 && c < 0x7f) {
+      out += static_cast<char>(c);
+    } else {
+      out += "\\x";
+      out += kHex[c >> 4];
+      out += kHex[c & 0xf];
+    }
+  }
+  if (text.size() > kMaxExcerpt) out += "...";
+  return out + "'";
+}
+
+GraphFormat formatFromExtension(const std::string& path) {
+  const std::string ext = extensionOf(path);
+  if (ext == ".g2o") return GraphFormat::kG2o;
+  if (ext == ".graph" || ext == ".toro") return GraphFormat::kToro;
+  return GraphFormat::kAuto;
+}
 
 const char* formatName(GraphFormat format) {
   switch (format) {

@@ -9,26 +9,17 @@
 namespace toro {
 namespace detail {
 
-namespace {
-std::string quoted(std::string_view text) {
-  // Long garbage tokens would drown the message; the start is enough to recognise them.
-  constexpr std::size_t kMaxShown = 40;
-  std::string out = "'";
-  out += text.substr(0, kMaxShown);
-  if (text.size() > kMaxShown) out += "...";
-  out += "'";
-  return out;
-}
-}  // namespace
-
 void LineFields::fail(const std::string& message) const {
   throw ParseError(source_, line_, std::string(tag()) + ": " + message);
 }
 
 void LineFields::failField(std::size_t index, const char* name, const std::string& what) const {
-  std::ostringstream s;
-  s << tag() << " field " << index << " (" << name << "): " << quoted(field(index)) << ' ' << what;
-  throw ParseError(source_, line_, s.str());
+  // The field's text (capped: long garbage tokens would drown the message) helps the file's
+  // owner; the redacted form names the field only.
+  std::ostringstream where;
+  where << tag() << " field " << index << " (" << name << "): ";
+  throw ParseError(source_, line_, where.str() + excerpt(field(index)) + ' ' + what,
+                   where.str() + "the value " + what);
 }
 
 void LineFields::expectCount(std::size_t expected) const {

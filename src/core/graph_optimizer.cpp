@@ -1,5 +1,7 @@
 #include "toro_ros/core/graph_optimizer.h"
 
+#include "graph_optimizer_detail.h"
+
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -9,37 +11,13 @@
 
 namespace toro {
 
-namespace {
+namespace detail {
 
-using Clock = std::chrono::steady_clock;
-
-double secondsSince(Clock::time_point start) {
-  return std::chrono::duration<double>(Clock::now() - start).count();
-}
-
-// Copies the poses of `source` (same node ids) into `target`.
-void copyPoses(const PoseGraph& source, PoseGraph& target) {
-  for (const Node& n : source.nodes()) target.setPose(n.id, n.pose);
-}
-
-struct Recorder {
-  OptimizeReport* report;
-  const OptimizeCallback* callback;
-  Clock::time_point start;
-  void operator()(OptimizePhase phase, std::size_t iteration, double chi2, double lambda, bool accepted,
-                  const PoseGraph* estimate) const {
-    OptimizeIteration it{phase, iteration, chi2, lambda, accepted, secondsSince(start), estimate};
-    report->history.push_back(it);
-    if (*callback) (*callback)(it);
-  }
-};
-
-// Runs TORO iterations on `toro` until the switch-over rule fires; returns the reason.
 std::string runToroPhase(TreeOptimizer& toro, const OptimizeOptions& options, double chi2,
                          const Recorder& record, OptimizeReport* report) {
   for (std::size_t k = 1; k <= options.toro_max_iterations; ++k) {
     const IterationStats stats = toro.iterate();
-    const double next = g2oChi2(toro.graph());
+    const double next = robustObjective(toro.graph(), options.robust);
     ++report->toro_iterations;
     record(OptimizePhase::kToro, k, next, stats.learning_rate, true, &toro.graph());
     const double relative_decrease = chi2 > 0.0 ? (chi2 - next) / chi2 : 0.0;
@@ -55,7 +33,12 @@ std::string runToroPhase(TreeOptimizer& toro, const OptimizeOptions& options, do
   return "iteration budget of " + std::to_string(options.toro_max_iterations) + " reached";
 }
 
-}  // namespace
+}  // namespace detail
+
+using detail::Recorder;
+using detail::copyPoses;
+using detail::secondsSince;
+using detail::Clock;
 
 const char* optimizeModeName(OptimizeMode mode) {
   switch (mode) {
@@ -110,8 +93,12 @@ OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options,
                              const OptimizeCallback& callback) {
   const std::string problem = options.validate();
   if (!problem.empty()) throw std::invalid_argument("OptimizeOptions: " + problem);
+  FinishOptions finish_options = options.finish;
+  finish_options.robust = options.robust;
+  TreeOptimizerOptions toro_options = options.toro;
+  toro_options.robust = options.robust;
   // Constructed first so that an unavailable linear solver is reported before any work.
-  const LevenbergMarquardt finisher(options.finish);
+  const LevenbergMarquardt finisher(finish_options);
 
   OptimizeReport report;
   const Clock::time_point start = Clock::now();
@@ -119,28 +106,37 @@ OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options,
 
   const bool need_tree =
       options.mode != OptimizeMode::kFinish || options.initial_guess == InitialGuess::kChainOnTree;
-  if (need_tree && graph.numNodes() > 0) {
-    TreeOptimizer toro(options.toro);
+  if (options.robust.enabled() && options.initial_guess == InitialGuess::kChainOdometry &&
+      options.mode != OptimizeMode::kFinish && graph.numNodes() > 0) {
+    detail::optimizeRobustly(graph, options, record, &report);
+  } else if (need_tree && graph.numNodes() > 0) {
+    TreeOptimizer toro(toro_options);
     toro.setGraph(graph, options.initial_guess);
-    report.initial_chi2 = g2oChi2(toro.graph());
+    report.initial_chi2 = robustObjective(toro.graph(), options.robust);
     record(OptimizePhase::kStart, 0, report.initial_chi2, 0.0, true, &toro.graph());
     if (options.mode != OptimizeMode::kFinish) {
-      report.switch_reason = runToroPhase(toro, options, report.initial_chi2, record, &report);
+      report.switch_reason = detail::runToroPhase(toro, options, report.initial_chi2, record, &report);
     }
     copyPoses(toro.graph(), graph);
     report.toro_seconds = secondsSince(start);
   } else {
-    report.initial_chi2 = g2oChi2(graph);
+    report.initial_chi2 = robustObjective(graph, options.robust);
     record(OptimizePhase::kStart, 0, report.initial_chi2, 0.0, true, &graph);
   }
 
-  if (options.mode != OptimizeMode::kToro) {
+  if (options.mode != OptimizeMode::kToro && report.robust_start == RobustStart::kNone) {
     report.finish = finisher.optimize(graph, [&](const FinishIteration& it) {
       record(OptimizePhase::kFinish, it.iteration, it.chi2, it.lambda, it.accepted, nullptr);
     });
   }
-  report.final_chi2 = g2oChi2(graph);
+  report.final_chi2 = robustObjective(graph, options.robust);
   report.seconds = secondsSince(start);
+  report.weights = robustWeights(graph, options.robust);
+  for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
+    if (!isLoopClosure(graph.constraints()[c])) continue;
+    ++report.loop_closures;
+    if (report.weights[c] < kRejectedWeight) ++report.rejected_loop_closures;
+  }
   return report;
 }
 

@@ -3,6 +3,7 @@
 #include "toro_ros/core/finish_residuals.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -91,6 +92,45 @@ double g2oChi2(const PoseGraph& graph) {
   double sum = 0.0;
   for (const Constraint& c : graph.constraints()) sum += constraintChi2Of(graph, c);
   return sum;
+}
+
+double robustObjective(const PoseGraph& graph, const RobustOptions& robust) {
+  if (!robust.enabled()) return g2oChi2(graph);
+  double sum = 0.0;
+  for (const Constraint& c : graph.constraints()) {
+    const double chi2 = constraintChi2Of(graph, c);
+    sum += isLoopClosure(c) ? robustCost(robust, chi2) : chi2;
+  }
+  return sum;
+}
+
+std::vector<double> robustWeights(const PoseGraph& graph, const RobustOptions& robust) {
+  std::vector<double> out(graph.numConstraints(), 1.0);
+  if (!robust.enabled()) return out;
+  for (std::size_t k = 0; k < out.size(); ++k) {
+    const Constraint& c = graph.constraints()[k];
+    if (isLoopClosure(c)) out[k] = robustWeight(robust, constraintChi2Of(graph, c));
+  }
+  return out;
+}
+
+double alignedPositionRmse(const PoseGraph& estimate, const PoseGraph& reference) {
+  std::vector<Vector3> from, to;
+  for (const Node& n : estimate.nodes()) {
+    if (!reference.hasNode(n.id)) continue;
+    from.push_back(n.pose.translation());
+    to.push_back(reference.pose(n.id).translation());
+  }
+  if (from.empty()) return 0.0;
+  const std::size_t n = from.size();
+  Eigen::Matrix3Xd a(3, n), b(3, n);
+  for (std::size_t i = 0; i < n; ++i) {
+    a.col(static_cast<Eigen::Index>(i)) = from[i];
+    b.col(static_cast<Eigen::Index>(i)) = to[i];
+  }
+  const Eigen::Matrix4d t = n >= 3 ? Eigen::umeyama(a, b, false) : Eigen::Matrix4d::Identity();
+  const Eigen::Matrix3Xd aligned = (t.topLeftCorner<3, 3>() * a).colwise() + t.topRightCorner<3, 1>();
+  return std::sqrt((aligned - b).colwise().squaredNorm().sum() / static_cast<double>(n));
 }
 
 double constraintChi2(const PoseGraph& graph, std::size_t constraint_index) {

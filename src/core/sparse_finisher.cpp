@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdlib>
 #include <cmath>
 #include <numeric>
 #include <sstream>
@@ -80,9 +81,13 @@ template <class Model>
 class LmRun {
  public:
   LmRun(PoseGraph& graph, const FinishOptions& options)
-      : options_(options), problem_(graph, options.linear_solver) {}
+      : options_(options),
+        problem_(graph, options.linear_solver, options.robust,
+                 options.robust.enabled() ? (std::getenv("TORO_SET_ASIDE") ? std::atof(std::getenv("TORO_SET_ASIDE")) : options.robust_set_aside_weight) : 0.0) {}
 
   FinishReport run(PoseGraph& graph, const FinishCallback& callback);
+  // Set-aside loop closures that regained weight by the end of run().
+  std::size_t regained() const { return regained_; }
 
  private:
   // Solves for and tries one step; fills `it` and updates the state and report.stop.
@@ -96,15 +101,18 @@ class LmRun {
   detail::FinishProblem<Model> problem_;
   FinishReport report_;
   double chi2_ = 0.0, gradient_ = 0.0, lambda_ = 0.0, nu_ = 2.0, diagonal_scale_ = 1.0;
+  std::size_t regained_ = 0;
   Eigen::VectorXd step_;
 };
 
 template <class Model>
 FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback) {
   report_.held_nodes = problem_.numHeld();
+  report_.set_aside = problem_.numSetAside();
   report_.repaired_information = problem_.repairedInformation();
   chi2_ = problem_.linearize();
-  report_.initial_chi2 = chi2_;
+  report_.initial_objective = chi2_;
+  report_.initial_chi2 = options_.robust.enabled() ? problem_.plainChi2(nullptr) : chi2_;
   if (graph.numConstraints() == 0 || problem_.numFree() == 0) {
     report_.stop = FinishStop::kNoConstraints;
   } else {
@@ -124,7 +132,14 @@ FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback)
     if (callback) callback(it);
   }
   problem_.writeBack(graph);
-  report_.final_chi2 = chi2_;
+  report_.final_objective = chi2_;
+  if (options_.robust.enabled()) {
+    report_.final_chi2 = problem_.plainChi2(&report_.weights);
+    regained_ = problem_.numSetAside() ? problem_.setAsideRegained(options_.robust_set_aside_weight) : 0;
+  } else {
+    report_.final_chi2 = chi2_;
+    report_.weights.assign(graph.numConstraints(), 1.0);
+  }
   report_.seconds = secondsSince(start_);
   return report_;
 }
@@ -203,6 +218,10 @@ std::string FinishOptions::validate() const {
   if (!(max_lambda_factor > initial_lambda_factor) || !std::isfinite(max_lambda_factor)) {
     s << "max_lambda_factor must be finite and larger than initial_lambda_factor; ";
   }
+  if (!(robust_set_aside_weight >= 0.0 && robust_set_aside_weight < 1.0))
+    s << "robust_set_aside_weight must be in [0, 1); ";
+  const std::string robust_problem = robust.validate();
+  if (!robust_problem.empty()) s << robust_problem << "; ";
   std::string out = s.str();
   if (!out.empty()) out.resize(out.size() - 2);
   return out;
@@ -239,11 +258,38 @@ LevenbergMarquardt::LevenbergMarquardt(const FinishOptions& options) : options_(
   }
 }
 
-FinishReport LevenbergMarquardt::optimize(PoseGraph& graph, const FinishCallback& callback) const {
-  if (graph.dimension() == GraphDimension::k2D) {
-    return LmRun<detail::ModelSE2>(graph, options_).run(graph, callback);
+namespace {
+
+// Runs the finish, again while set-aside loop closures regain weight (bounded); one report.
+template <class Model>
+FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const FinishCallback& callback) {
+  FinishReport total;
+  for (std::size_t round = 1;; ++round) {
+    LmRun<Model> run(graph, options);
+    FinishReport r = run.run(graph, callback);
+    if (round == 1) {
+      total = r;
+    } else {
+      total.final_chi2 = r.final_chi2;
+      total.final_objective = r.final_objective;
+      total.weights = std::move(r.weights);
+      total.iterations += r.iterations;
+      total.stop = r.stop;
+      total.set_aside = r.set_aside;
+      total.rounds = round;
+      total.seconds += r.seconds;
+      total.factorization_seconds += r.factorization_seconds;
+      total.history.insert(total.history.end(), r.history.begin(), r.history.end());
+    }
+    if (run.regained() == 0 || round >= kMaxSetAsideRounds) return total;
   }
-  return LmRun<detail::ModelSE3>(graph, options_).run(graph, callback);
+}
+
+}  // namespace
+
+FinishReport LevenbergMarquardt::optimize(PoseGraph& graph, const FinishCallback& callback) const {
+  if (graph.dimension() == GraphDimension::k2D) return optimizeWith<detail::ModelSE2>(graph, options_, callback);
+  return optimizeWith<detail::ModelSE3>(graph, options_, callback);
 }
 
 }  // namespace toro

@@ -2,7 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <stdexcept>
+
+#include "toro_ros/core/block_stiffness.h"
+#include "toro_ros/core/finish_residuals.h"
+#include "toro_ros/core/metrics.h"
 
 namespace toro {
 
@@ -12,11 +17,9 @@ constexpr std::size_t kNone = ParameterTree::kNone;
 // Inverse stiffness of a node no constraint passes through yet (capped per update anyway).
 constexpr double kUnconstrained = 1e300;
 
-// TORO weighs each constraint by one scalar per part: the smallest diagonal entry of the rotational
-// and translational information (a conservative stiffness).  Units cancel in the ratios used below.
-double smallestDiagonal(const Matrix6& m, int offset) {
-  return std::min({m(offset, offset), m(offset + 1, offset + 1), m(offset + 2, offset + 2)});
-}
+// A weight that changed by less than this fraction keeps its old share of the preconditioner (a
+// preconditioner only needs to be roughly right; updating it walks the constraint's path).
+constexpr double kPreconditionerWeightTolerance = 0.1;
 
 // Fraction of a constraint's error removed by one update: the learning rate times the constraint's
 // information over the stiffness of its path (Olson's preconditioned step, summed over the path),
@@ -25,8 +28,6 @@ double stepFraction(double learning_rate, double info, double weight_sum) {
   return std::min(1.0, learning_rate * info * weight_sum);
 }
 
-double wrapAngle(double a) { return std::atan2(std::sin(a), std::cos(a)); }
-
 }  // namespace
 
 std::string TreeOptimizerOptions::validate() const {
@@ -34,7 +35,7 @@ std::string TreeOptimizerOptions::validate() const {
   if (!(translation_gamma > 0.0) || !std::isfinite(translation_gamma)) {
     return "translation_gamma must be a positive finite number";
   }
-  return {};
+  return robust.validate();
 }
 
 TreeOptimizer::TreeOptimizer(const TreeOptimizerOptions& options) : options_(options) {
@@ -50,8 +51,15 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   incident_.assign(n, {});
   from_index_.clear();
   to_index_.clear();
+  base_rotation_info_.clear();
+  base_translation_info_.clear();
   constraint_rotation_info_.clear();
   constraint_translation_info_.clear();
+  robust_weight_.clear();
+  preconditioned_weight_.clear();
+  robust_.clear();
+  measured_axes_index_.clear();
+  measured_axes_.clear();
   for (std::size_t c = 0; c < graph_.numConstraints(); ++c) registerConstraint(c);
   rotation_weight_.assign(n, 0.0);
   translation_weight_.assign(n, 0.0);
@@ -63,11 +71,15 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   parameters_.assign(n, Pose3());
   if (guess == InitialGuess::kFromGraph) {
     parametersFromPoses();
+  } else if (guess == InitialGuess::kChainOdometry) {
+    chainOdometryGuess();
+    parametersFromPoses();
   } else {
     chainInitialGuess();
   }
   recomputePoses();
   structure_dirty_ = true;
+  refreshWeights();  // from the initial guess; the structure refresh then uses them
   new_constraints_.clear();
   iteration_ = 0;
 }
@@ -78,8 +90,65 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
   to_index_.push_back(graph_.indexOf(k.to));
   incident_[from_index_.back()].push_back(c);
   incident_[to_index_.back()].push_back(c);
-  constraint_translation_info_.push_back(smallestDiagonal(k.information, 0));
-  constraint_rotation_info_.push_back(smallestDiagonal(k.information, 3));
+  const BlockStiffness translation = blockStiffness(k.information.topLeftCorner<3, 3>());
+  const BlockStiffness rotation = blockStiffness(k.information.bottomRightCorner<3, 3>());
+  base_translation_info_.push_back(translation.weight);
+  base_rotation_info_.push_back(rotation.weight);
+  constraint_translation_info_.push_back(translation.weight);
+  constraint_rotation_info_.push_back(rotation.weight);
+  robust_weight_.push_back(1.0);
+  preconditioned_weight_.push_back(1.0);
+  robust_.push_back(options_.robust.enabled() && isLoopClosure(k) ? 1 : 0);
+  if (translation.all_axes_measured && rotation.all_axes_measured) {
+    measured_axes_index_.push_back(-1);
+  } else {
+    measured_axes_index_.push_back(static_cast<int>(measured_axes_.size()));
+    measured_axes_.push_back(MeasuredAxes{translation.measured_projection, rotation.measured_projection,
+                                          !translation.all_axes_measured, !rotation.all_axes_measured});
+  }
+}
+
+void TreeOptimizer::setWeight(std::size_t c, double weight) {
+  robust_weight_[c] = weight;
+  constraint_rotation_info_[c] = base_rotation_info_[c] * weight;
+  constraint_translation_info_[c] = base_translation_info_[c] * weight;
+}
+
+void TreeOptimizer::adjustPreconditioner(std::size_t c, double rotation_delta, double translation_delta) {
+  tree_.path(from_index_[c], to_index_[c], up_, down_);
+  for (const auto* branch : {&up_, &down_}) {
+    for (std::size_t v : *branch) {
+      rotation_weight_[v] = std::max(0.0, rotation_weight_[v] + rotation_delta);
+      translation_weight_[v] = std::max(0.0, translation_weight_[v] + translation_delta);
+      inverse_rotation_weight_[v] = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
+      inverse_translation_weight_[v] =
+          translation_weight_[v] > 0.0 ? 1.0 / translation_weight_[v] : kUnconstrained;
+    }
+  }
+}
+
+std::size_t TreeOptimizer::refreshWeights(const std::vector<std::size_t>& constraints) {
+  std::size_t changed = 0;
+  for (std::size_t c : constraints) {
+    if (!robust_[c]) continue;
+    const double weight = robustWeight(options_.robust, constraintChi2(graph_, c));
+    setWeight(c, weight);  // the step uses the new weight at once
+    // The preconditioner follows only noticeable changes (it walks the path).
+    const double held = preconditioned_weight_[c];
+    if (!(std::abs(weight - held) > kPreconditionerWeightTolerance * std::max(weight, held))) continue;
+    ++changed;
+    preconditioned_weight_[c] = weight;
+    if (!structure_dirty_)
+      adjustPreconditioner(c, base_rotation_info_[c] * (weight - held), base_translation_info_[c] * (weight - held));
+  }
+  return changed;
+}
+
+std::size_t TreeOptimizer::refreshWeights() {
+  if (!options_.robust.enabled()) return 0;
+  std::vector<std::size_t> all(graph_.numConstraints());
+  for (std::size_t c = 0; c < all.size(); ++c) all[c] = c;
+  return refreshWeights(all);
 }
 
 void TreeOptimizer::chainInitialGuess() {
@@ -103,6 +172,51 @@ void TreeOptimizer::chainInitialGuess() {
   }
 }
 
+void TreeOptimizer::chainOdometryGuess() {
+  const std::size_t n = graph_.numNodes();
+  std::vector<char> placed(n, 0);
+  std::vector<std::size_t> by_id(n);
+  for (std::size_t v = 0; v < n; ++v) by_id[v] = v;
+  std::sort(by_id.begin(), by_id.end(), [&](std::size_t a, std::size_t b) { return graph_.node(a).id < graph_.node(b).id; });
+  std::deque<std::size_t> odometry_front;
+  std::deque<std::size_t> loop_closures;  // constraint indices seen from placed nodes
+  const auto place = [&](std::size_t v, const Pose3& pose) {
+    placed[v] = 1;
+    graph_.setPoseAt(v, pose);
+    odometry_front.push_back(v);
+  };
+  // Pose of the other end of c seen from placed end v.
+  const auto across = [&](std::size_t c, std::size_t v) {
+    const Constraint& k = graph_.constraints()[c];
+    return from_index_[c] == v ? graph_.node(v).pose * k.measurement : graph_.node(v).pose * k.measurement.inverse();
+  };
+  for (std::size_t root : by_id) {
+    if (placed[root]) continue;
+    place(root, graph_.node(root).pose);  // a component's smallest id keeps its pose (the gauge)
+    while (!odometry_front.empty() || !loop_closures.empty()) {
+      if (odometry_front.empty()) {
+        const std::size_t c = loop_closures.front();
+        loop_closures.pop_front();
+        const std::size_t a = from_index_[c], b = to_index_[c];
+        if (placed[a] && !placed[b]) place(b, across(c, a));
+        if (placed[b] && !placed[a]) place(a, across(c, b));
+        continue;
+      }
+      const std::size_t v = odometry_front.front();
+      odometry_front.pop_front();
+      for (std::size_t c : incident_[v]) {
+        const std::size_t u = from_index_[c] == v ? to_index_[c] : from_index_[c];
+        if (placed[u]) continue;
+        if (isLoopClosure(graph_.constraints()[c])) {
+          loop_closures.push_back(c);
+        } else {
+          place(u, across(c, v));
+        }
+      }
+    }
+  }
+}
+
 void TreeOptimizer::parametersFromPoses() {
   for (std::size_t v = 0; v < graph_.numNodes(); ++v) {
     const std::size_t p = tree_.parent(v);
@@ -119,12 +233,14 @@ void TreeOptimizer::recomputePoses() {
 
 void TreeOptimizer::addToPreconditioner(std::size_t c) {
   top_level_[c] = tree_.level(tree_.path(from_index_[c], to_index_[c], up_, down_));
+  preconditioned_weight_[c] = robust_weight_[c];
   for (const auto* branch : {&up_, &down_}) {
     for (std::size_t v : *branch) {
       rotation_weight_[v] += constraint_rotation_info_[c];
       translation_weight_[v] += constraint_translation_info_[c];
-      inverse_rotation_weight_[v] = 1.0 / rotation_weight_[v];
-      inverse_translation_weight_[v] = 1.0 / translation_weight_[v];
+      inverse_rotation_weight_[v] = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
+      inverse_translation_weight_[v] =
+          translation_weight_[v] > 0.0 ? 1.0 / translation_weight_[v] : kUnconstrained;
     }
   }
 }
@@ -148,6 +264,7 @@ void TreeOptimizer::refreshStructure() {
 
 IterationStats TreeOptimizer::iterate() {
   if (structure_dirty_) refreshStructure();
+  refreshWeights();
   ++iteration_;
   const double learning_rate = 1.0 / (options_.gamma * static_cast<double>(iteration_));
   runPass(order_, learning_rate);
@@ -170,6 +287,8 @@ void TreeOptimizer::applyUpdate(std::size_t constraint_index, double learning_ra
 }
 
 void TreeOptimizer::updateConstraint(std::size_t c, double learning_rate) {
+  // A loop closure whose robust weight vanished (infinite residual) has nothing to say.
+  if (!(constraint_rotation_info_[c] > 0.0) && !(constraint_translation_info_[c] > 0.0)) return;
   top_ = tree_.path(from_index_[c], to_index_[c], up_, down_);
   if (top_ == kNone) return;  // ends in different trees: cannot happen for a constraint of the graph
   // Poses of the path nodes in the top node's frame; the top node itself is the identity there.
@@ -227,8 +346,15 @@ void TreeOptimizer::distributeRotation(std::size_t c, double learning_rate) {
   const Quaternion& qa = up_.empty() ? Quaternion::Identity() : up_poses_[0].rotation();
   const Quaternion& qb = down_.empty() ? Quaternion::Identity() : down_poses_[0].rotation();
   // Rotation that, applied on the left (in the top frame), takes b's orientation to a * Z.
-  const Vector3 error = rotationVectorFromQuaternion(qa * k.measurement.rotation() * qb.conjugate());
+  Vector3 error = rotationVectorFromQuaternion(qa * k.measurement.rotation() * qb.conjugate());
   const double info = constraint_rotation_info_[c];
+  if (!(info > 0.0)) return;
+  const int axes = measured_axes_index_[c];
+  if (axes >= 0 && measured_axes_[axes].rotation_partial) {
+    // The error in the top frame is R v for the constraint-frame error v, R = rotation of a * Z.
+    const Matrix3 r = (qa * k.measurement.rotation()).toRotationMatrix();
+    error = r * (measured_axes_[axes].rotation * (r.transpose() * error));
+  }
   const double weight_sum = computeShares(up_, down_, inverse_rotation_weight_, info, up_share_, down_share_);
   const double fraction = stepFraction(learning_rate, info, weight_sum);
   // All partial corrections share one axis, so they commute and the two ends end up exactly
@@ -253,8 +379,9 @@ void TreeOptimizer::distributeRotationNaively(std::size_t c, double learning_rat
   const Vector3 current = Pose3(qa.conjugate() * qb, Vector3::Zero()).rollPitchYaw();
   const Vector3 wanted = k.measurement.rollPitchYaw();
   Vector3 error;
-  for (int i = 0; i < 3; ++i) error[i] = wrapAngle(wanted[i] - current[i]);
+  for (int i = 0; i < 3; ++i) error[i] = toro::wrapAngle(wanted[i] - current[i]);
   const double info = constraint_rotation_info_[c];
+  if (!(info > 0.0)) return;
   const double weight_sum = computeShares(up_, down_, inverse_rotation_weight_, info, up_share_, down_share_);
   const double fraction = stepFraction(learning_rate, info, weight_sum);
   // Each joint's own share is the difference of consecutive cumulative shares.
@@ -277,8 +404,14 @@ void TreeOptimizer::distributeTranslation(std::size_t c, double learning_rate) {
   const Constraint& k = graph_.constraints()[c];
   const Pose3 top_T_a = up_.empty() ? Pose3() : up_poses_[0];
   const Vector3 b = down_.empty() ? Vector3::Zero() : down_poses_[0].translation();
-  const Vector3 residual = top_T_a * k.measurement.translation() - b;
+  Vector3 residual = top_T_a * k.measurement.translation() - b;
   const double info = constraint_translation_info_[c];
+  if (!(info > 0.0)) return;
+  const int axes = measured_axes_index_[c];
+  if (axes >= 0 && measured_axes_[axes].translation_partial) {
+    const Matrix3 r = (top_T_a.rotation() * k.measurement.rotation()).toRotationMatrix();
+    residual = r * (measured_axes_[axes].translation * (r.transpose() * residual));
+  }
   const double weight_sum = computeShares(up_, down_, inverse_translation_weight_, info, up_share_, down_share_);
   const double fraction = stepFraction(learning_rate * translation_rate_factor_, info, weight_sum);
   for (std::size_t i = 0; i < up_.size(); ++i) {
@@ -324,6 +457,8 @@ void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
 std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
   const std::size_t c = graph_.addConstraint(constraint);
   registerConstraint(c);
+  // A new loop closure is weighted by its residual at arrival, before any pass moves the map for it.
+  if (robust_[c]) setWeight(c, robustWeight(options_.robust, constraintChi2(graph_, c)));
   affected_mark_.push_back(0);
   top_level_.push_back(0);
   std::vector<std::size_t> reparented;
@@ -380,6 +515,7 @@ IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteratio
     }
   }
   for (std::size_t c : affected) affected_mark_[c] = 0;
+  if (options_.robust.enabled()) refreshWeights(affected);
   affected = sortedByTopLevel(std::move(affected));
   const double learning_rate =
       1.0 / (options_.gamma * static_cast<double>(std::max<std::size_t>(1, learning_rate_iteration)));

@@ -43,13 +43,18 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
     : nh_(nh),
       private_nh_(private_nh),
       options_(loadOptions(private_nh, &unknown_parameters_)),
+      graph_directory_(options_.graph_directory),
       diagnostics_(nh, private_nh) {
+  ROS_INFO_STREAM("map corrector: " << graph_directory_.resolveOperatorPaths(
+                      &options_.load_path, &options_.pipeline.persistence.autosave_path));
   auto pipeline = std::make_unique<Pipeline>(
       options_.pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); },
       [](const std::string& i) { ROS_INFO_STREAM("map corrector: " << i); });
   // Before the worker takes the pipeline; throws, stopping the node, if load_path exists but
-  // cannot be loaded, rather than start empty and autosave over it.
-  const std::string resumed = loadOnStart(*pipeline, options_.load_path);
+  // cannot be loaded, rather than start empty and autosave over it.  Its message goes to /rosout,
+  // which anyone on the ROS network reads, and parameters can be set by anyone there: it quotes
+  // no file content.
+  const std::string resumed = loadOnStart(*pipeline, options_.load_path, /*quote_content=*/false);
   if (!resumed.empty()) ROS_INFO_STREAM("map corrector: " << resumed);
   worker_ = std::make_unique<PipelineWorker>(std::move(pipeline), static_cast<std::size_t>(options_.queue_size),
                                              [](const std::string& e) { ROS_ERROR_STREAM("map corrector: " << e); });

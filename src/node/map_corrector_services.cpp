@@ -50,19 +50,34 @@ bool MapCorrectorNode::resetService(std_srvs::Trigger::Request&, std_srvs::Trigg
   return true;
 }
 
+// The caller's name is confined to graph_directory (checked here, in the service thread, so a
+// large existing file is parsed outside the worker); the worker then writes or reads exactly the
+// file checked (GraphFileRef keeps its directory open).
 bool MapCorrectorNode::saveGraphService(GraphFile::Request& req, GraphFile::Response& res) {
-  const std::string path = req.path;
-  const auto r = runOnWorker<std::string>([path](Pipeline& p) { return p.saveGraph(path); });
+  const ConfinedFile target = graph_directory_.forSave(req.path);
+  if (!target.file) {
+    res.success = false;
+    res.message = target.error;
+    return true;
+  }
+  const GraphFileRef file = *target.file;
+  const auto r = runOnWorker<std::string>([file](Pipeline& p) { return p.saveGraph(file); });
   res.success = r && r->empty();
-  res.message = !r ? kTimedOut : (r->empty() ? "saved " + path : *r);
+  res.message = !r ? kTimedOut : (r->empty() ? "saved " + file.displayPath() + " and its .stamps" : *r);
   return true;
 }
 
 bool MapCorrectorNode::loadGraphService(GraphFile::Request& req, GraphFile::Response& res) {
-  const std::string path = req.path;
-  const auto r = runOnWorker<std::string>([path](Pipeline& p) { return p.loadGraph(path); });
+  const ConfinedFile source = graph_directory_.forLoad(req.path);
+  if (!source.file) {
+    res.success = false;
+    res.message = source.error;
+    return true;
+  }
+  const GraphFileRef file = *source.file;
+  const auto r = runOnWorker<std::string>([file](Pipeline& p) { return p.loadGraph(file); });
   res.success = r && r->empty();
-  res.message = !r ? kTimedOut : (r->empty() ? "loaded " + path : *r);
+  res.message = !r ? kTimedOut : (r->empty() ? "loaded " + file.displayPath() : *r);
   return true;
 }
 

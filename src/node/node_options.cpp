@@ -154,6 +154,7 @@ NodeOptions loadNodeOptions(const XmlRpc::XmlRpcValue& params, OptionsReport* re
   r.read("queue_size", o.queue_size);
   r.read("service_timeout_sec", o.service_timeout_sec);
   r.read("load_path", o.load_path);
+  r.read("graph_directory", o.graph_directory);
   readPipeline(r, o.pipeline);
   r.read("marker_node_scale_m", o.markers.node_scale_m);
   r.read("marker_edge_width_m", o.markers.edge_width_m);

@@ -14,6 +14,7 @@
 #include "toro_ros/core/tree_optimizer.h"
 #include "toro_ros/offline/flat_yaml.h"
 #include "toro_ros/offline/progress_bar.h"
+#include "toro_ros/pipeline/graph_directory.h"
 #include "toro_ros/pipeline/input_table.h"
 #include "toro_ros/pipeline/persistence.h"
 
@@ -74,6 +75,12 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
     : options_(options), node_options_(loadNodeOptionsFile(options.config_path)) {
   const std::string invalid = options.validate();
   if (!invalid.empty()) throw std::invalid_argument(invalid);
+  // As the node: relative load_path / autosave_path are taken from graph_directory.
+  const std::string paths = GraphDirectory(node_options_.graph_directory)
+                                .resolveOperatorPaths(&node_options_.load_path,
+                                                      &node_options_.pipeline.persistence.autosave_path);
+  if (!node_options_.load_path.empty() || !node_options_.pipeline.persistence.autosave_path.empty())
+    std::cerr << paths << '\n';
   pipeline_ = std::make_unique<Pipeline>(
       node_options_.pipeline,
       [this](const std::string& w) {

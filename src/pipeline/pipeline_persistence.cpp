@@ -3,7 +3,6 @@
 // map by new odometry.
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <limits>
 #include <stdexcept>
 
@@ -15,8 +14,6 @@
 namespace toro_ros {
 
 namespace {
-
-bool fileExists(const std::string& path) { return static_cast<bool>(std::ifstream(path)); }
 
 // Without a sidecar: no stamps, odometry poses taken as the graph poses, and every constraint
 // that does not join consecutive ids counted as a loop closure.
@@ -64,39 +61,46 @@ std::string PersistenceOptions::validate() const {
   return e.empty() ? "" : "resume_link_stddev: " + e;
 }
 
-std::string Pipeline::saveGraph(const std::string& path) const {
+std::string Pipeline::saveGraph(const std::string& path) const { return saveGraph(GraphFileRef(path)); }
+
+std::string Pipeline::saveGraph(const GraphFileRef& file) const {
   if (optimizer_.graph().empty()) return "nothing to save: the graph is empty";
-  // Both written to temporary files first and renamed in place (sidecar first, graph last), so a
-  // crash or kill while saving (autosave) leaves the previous pair intact.
-  const std::string graph_tmp = temporaryPath(path), sidecar_tmp = temporaryPath(sidecarPath(path));
+  Sidecar s;
+  s.keyframes = keyframes_.records();
+  for (std::size_t c = 0; c < is_loop_closure_.size(); ++c)
+    if (is_loop_closure_[c]) s.loop_closures.push_back(c);
+  s.rejected = rejected_;
+  toro::WriteOptions format;
+  format.format = toro::formatFromExtension(file.name());
   try {
-    toro::writeGraph(optimizer_.graph(), graph_tmp);
-    Sidecar s;
-    s.keyframes = keyframes_.records();
-    for (std::size_t c = 0; c < is_loop_closure_.size(); ++c)
-      if (is_loop_closure_[c]) s.loop_closures.push_back(c);
-    s.rejected = rejected_;
-    writeSidecar(sidecar_tmp, s);
-    commitFile(sidecar_tmp, sidecarPath(path));
-    commitFile(graph_tmp, path);
+    // Both written to temporary files first and renamed in place (sidecar first, graph last), so
+    // a crash or kill while saving (autosave) leaves the previous pair intact.
+    PendingFile sidecar(file.sidecar(), [&](std::ostream& out) { writeSidecar(out, s); });
+    PendingFile graph(file, [&](std::ostream& out) { toro::writeGraph(optimizer_.graph(), out, format); });
+    sidecar.commit();
+    graph.commit();
   } catch (const std::exception& e) {
-    std::remove(graph_tmp.c_str());
-    std::remove(sidecar_tmp.c_str());
-    return "cannot save " + path + ": " + e.what();
+    return "cannot save " + file.displayPath() + ": " + e.what();
   }
   return "";
 }
 
-std::string Pipeline::loadGraph(const std::string& path) {
+std::string Pipeline::loadGraph(const std::string& path) { return loadGraph(GraphFileRef(path)); }
+
+std::string Pipeline::loadGraph(const GraphFileRef& file) {
+  const std::string& path = file.displayPath();
   toro::PoseGraph graph;
   Sidecar sidecar;
   try {
-    graph = toro::readGraph(path);
+    graph = readGraphFile(file);
     if (graph.empty()) return path + ": the graph is empty";
     for (std::size_t i = 1; i < graph.numNodes(); ++i)
       if (graph.node(i).id <= graph.node(i - 1).id)
         return path + ": node ids must increase in file order (they are keyframes in stamp order)";
-    sidecar = fileExists(sidecarPath(path)) ? readSidecar(sidecarPath(path)) : sidecarFromGraph(graph);
+    const GraphFileRef side = file.sidecar();
+    sidecar = fileExists(side) ? readSidecarFile(side) : sidecarFromGraph(graph);
+  } catch (const toro::ParseError& e) {
+    return file.describe(e);
   } catch (const std::exception& e) {
     return e.what();
   }
@@ -157,16 +161,32 @@ void Pipeline::autosaveIfDue(const ros::Time& stamp) {
   autosave();
 }
 
-std::string loadOnStart(Pipeline& pipeline, const std::string& path) {
+namespace {
+
+std::string resume(Pipeline& pipeline, const std::string& path, bool quote_content) {
   if (path.empty()) return "";
-  if (!fileExists(path)) return "load_path " + path + " does not exist yet: starting a new map";
-  const std::string error = pipeline.loadGraph(path);
+  const GraphFileRef file(path, quote_content);
+  if (!fileExists(file)) return "load_path " + path + " does not exist yet: starting a new map";
+  const std::string error = pipeline.loadGraph(file);
   if (!error.empty()) throw std::runtime_error("load_path: " + error);
   const KeyframeIndex& k = pipeline.keyframes();
   return "resumed " + path + ": " + std::to_string(k.size()) + " keyframes, " +
          std::to_string(pipeline.graph().numConstraints()) + " constraints, newest keyframe at " +
          stampString(k.newest().stamp) + "; odometry joins it by resume_link " +
          toString(pipeline.options().persistence.resume_link);
+}
+
+}  // namespace
+
+std::string loadOnStart(Pipeline& pipeline, const std::string& path, bool quote_content) {
+  const std::string resumed = resume(pipeline, path, quote_content);
+  const std::string& autosave = pipeline.options().persistence.autosave_path;
+  // Unless it is the file just loaded (a graph, then).
+  if (!autosave.empty() && !(autosave == path && !pipeline.graph().empty())) {
+    const std::string why = checkReplaceable(GraphFileRef(autosave, quote_content));
+    if (!why.empty()) throw std::runtime_error("autosave_path: refusing to replace it: " + why);
+  }
+  return resumed;
 }
 
 std::string Pipeline::autosave() {

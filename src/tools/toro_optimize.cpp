@@ -54,8 +54,21 @@ constexpr const char* kUsage =
     "                            (default 1, measured fastest on a shared 2-core machine; 0 leaves\n"
     "                            the runtimes' own settings)\n"
     "  -o OUTPUT                 write the result; format by extension (.graph/.toro: TORO, else g2o)\n"
-    "  --initial-guess chain|file  chain the measurements along the tree (default) or keep the\n"
-    "                            file's poses (files without VERTEX lines always chain)\n"
+    "  --initial-guess chain|odometry|file\n"
+    "                            chain the measurements along the tree (default without --robust),\n"
+    "                            chain the odometry (consecutive ids) and reach the rest through\n"
+    "                            loop closures (default with --robust), or keep the file's poses\n"
+    "                            (files without VERTEX lines always chain)\n"
+    "  --robust                  robust loop closures (constraints between non-consecutive ids) in\n"
+    "                            both phases: each one's information is scaled by a weight from its\n"
+    "                            residual, so wrong ones cannot bend the map (off by default: on a\n"
+    "                            clean file the result is then the plain maximum-likelihood optimum)\n"
+    "  --robust-kernel dcs|cauchy|huber\n"
+    "                            the weight function (default dcs: Dynamic Covariance Scaling);\n"
+    "                            implies --robust\n"
+    "  --robust-width W          the kernel's width phi in chi2 units (default 1); implies --robust\n"
+    "  --rejected-out FILE       write the loop closures whose final weight is below 0.5, one\n"
+    "                            'from to' pair a line (needs --robust)\n"
     "  --gamma G                 rotational learning rate of iteration k is 1/(G k) (default 1 for\n"
     "                            --mode toro, 0.1 before the finish: larger steps find the best\n"
     "                            basin on big-noise graphs;\n"
@@ -85,6 +98,10 @@ struct CliOptions {
   toro::LinearSolverType linear_solver = toro::FinishOptions{}.linear_solver;
   std::size_t solver_threads = 1;
   bool chain_guess = true;
+  bool odometry_guess = false;   // --initial-guess odometry (the default with --robust)
+  bool guess_given = false;
+  toro::RobustOptions robust;    // kernel kNone: off
+  std::string rejected_out;
   std::optional<double> gamma;  // unset: the mode's default
   toro::ToroInformationOrder toro_order = toro::ToroInformationOrder::kTranslationFirst;
   bool quiet = false;
@@ -162,9 +179,24 @@ CliOptions parseArguments(const std::vector<std::string>& args) {
       o.gamma = parsePositive(a, value());
     } else if (a == "--initial-guess") {
       const std::string& v = value();
-      if (v != "chain" && v != "file")
-        throw UsageError("--initial-guess must be chain or file, got '" + v + "'");
-      o.chain_guess = v == "chain";
+      if (v != "chain" && v != "file" && v != "odometry")
+        throw UsageError("--initial-guess must be chain, odometry or file, got '" + v + "'");
+      o.chain_guess = v != "file";
+      o.odometry_guess = v == "odometry";
+      o.guess_given = true;
+    } else if (a == "--robust") {
+      if (!o.robust.enabled()) o.robust.kernel = toro::RobustKernel::kDcs;
+    } else if (a == "--robust-kernel") {
+      const std::string& v = value();
+      const auto kernel = toro::robustKernelFromString(v);
+      if (!kernel || *kernel == toro::RobustKernel::kNone)
+        throw UsageError("--robust-kernel must be dcs, cauchy or huber, got '" + v + "'");
+      o.robust.kernel = *kernel;
+    } else if (a == "--robust-width") {
+      o.robust.width = parsePositive(a, value());
+      if (!o.robust.enabled()) o.robust.kernel = toro::RobustKernel::kDcs;
+    } else if (a == "--rejected-out") {
+      o.rejected_out = value();
     } else if (a == "--toro-info-order") {
       const std::string& v = value();
       if (v != "translation-first" && v != "rotation-first") {
@@ -181,6 +213,8 @@ CliOptions parseArguments(const std::vector<std::string>& args) {
     }
   }
   if (!o.help && o.input.empty()) throw UsageError("no input file");
+  if (!o.rejected_out.empty() && !o.robust.enabled()) throw UsageError("--rejected-out needs --robust");
+  if (o.robust.enabled() && !o.guess_given) o.odometry_guess = true;
   return o;
 }
 
@@ -242,7 +276,10 @@ void printFinishLine(const toro::OptimizeIteration& it, double seconds) {
 toro::OptimizeOptions optimizeOptions(const CliOptions& o) {
   toro::OptimizeOptions options;
   options.mode = o.mode;
-  options.initial_guess = o.chain_guess ? toro::InitialGuess::kChainOnTree : toro::InitialGuess::kFromGraph;
+  options.initial_guess = !o.chain_guess    ? toro::InitialGuess::kFromGraph
+                          : o.odometry_guess ? toro::InitialGuess::kChainOdometry
+                                             : toro::InitialGuess::kChainOnTree;
+  options.robust = o.robust;
   // Without --gamma: TORO's own default alone, the basin-finding one before the finish.
   options.toro.gamma = o.gamma ? *o.gamma
                                : (o.mode == toro::OptimizeMode::kToro ? toro::TreeOptimizerOptions{}.gamma
@@ -276,7 +313,13 @@ void printMeasures(const char* label, const Measures& m) {
 void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measures& before,
                   const Measures& after, const RunLog& log, const toro::OptimizeReport& result) {
   std::printf("summary: %s, %zu nodes, %zu constraints, %zu iterations, initial guess %s\n", o.input.c_str(),
-              graph.numNodes(), graph.numConstraints(), log.iterations, o.chain_guess ? "chain" : "file");
+              graph.numNodes(), graph.numConstraints(), log.iterations,
+              !o.chain_guess ? "file" : o.odometry_guess ? "odometry" : "chain");
+  if (o.robust.enabled()) {
+    std::printf("  robust  kernel %s, width %g: %zu of %zu loop closures rejected (weight < %g)\n",
+                toro::robustKernelName(o.robust.kernel), o.robust.width, result.rejected_loop_closures,
+                result.loop_closures, toro::kRejectedWeight);
+  }
   std::printf("  mode    %s: %zu tree iterations", toro::optimizeModeName(o.mode), result.toro_iterations);
   if (o.mode == toro::OptimizeMode::kToroThenFinish)
     std::printf(" (switch: %s)", result.switch_reason.c_str());
@@ -300,6 +343,18 @@ void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measu
   }
 }
 
+// --rejected-out: one "from to" line per loop closure whose final weight is below kRejectedWeight.
+void writeRejected(const std::string& path, const toro::PoseGraph& graph, const toro::OptimizeReport& result) {
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (f == nullptr) throw std::runtime_error("cannot write '" + path + "'");
+  for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
+    const toro::Constraint& k = graph.constraints()[c];
+    if (toro::isLoopClosure(k) && result.weights[c] < toro::kRejectedWeight)
+      std::fprintf(f, "%lld %lld\n", k.from, k.to);
+  }
+  if (std::fclose(f) != 0) throw std::runtime_error("cannot write '" + path + "'");
+}
+
 // Chaining is forced when the file gives no pose for some node.
 bool decideChain(const CliOptions& o, const toro::ReadReport& report) {
   if (o.chain_guess) return true;
@@ -312,6 +367,7 @@ bool decideChain(const CliOptions& o, const toro::ReadReport& report) {
 
 int optimise(CliOptions o) {
   checkOutputDirectory(o.output);
+  checkOutputDirectory(o.rejected_out);
   toro::ReadOptions read_options;
   read_options.toro_information_order = o.toro_order;
   toro::ReadReport report;
@@ -350,6 +406,7 @@ int optimise(CliOptions o) {
   log.iterations = result.toro_iterations + result.finish.iterations;
   log.optimise_seconds = result.seconds - log.setup_seconds - log.measure_seconds;
   printSummary(o, graph, before, measure(estimate), log, result);
+  if (!o.rejected_out.empty()) writeRejected(o.rejected_out, estimate, result);
   if (!o.output.empty()) {
     toro::WriteOptions write_options;
     write_options.toro_information_order = o.toro_order;

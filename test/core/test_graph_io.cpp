@@ -341,5 +341,29 @@ TEST(GraphIo, GarbageBinaryAndNonTagLines) {
       10);
   EXPECT_PARSE_ERROR(garbage, "a.out", 2, "binary data (byte 0x7f at column 1): not a text graph file");
   EXPECT_PARSE_ERROR("1 2 3\n", "a.g2o", 1, "'1' is not a tag");
-  EXPECT_PARSE_ERROR("\xc3\xa9t\xc3\xa9 1\n", "a.g2o", 1, "is not a tag");
+  EXPECT_PARSE_ERROR("\xc3\xa9t\xc3\xa9 1\n", "a.g2o", 1, "'\\xc3\\xa9t\\xc3\\xa9' is not a tag");
+}
+
+// The quoted part of a message helps the file's owner; redactedWhat() (the node's services) says
+// the same without any of the file's content.
+TEST(GraphIo, ErrorsQuoteAShortSanitisedExcerptAndTheRedactedFormNone) {
+  EXPECT_EQ(excerpt("abc"), "'abc'");
+  EXPECT_EQ(excerpt("a\x1b]0;x\x07\xc2\x9b"), "'a\\x1b]0;x\\x07\\xc2\\x9b'");  // no terminal escape passes
+  EXPECT_EQ(excerpt(std::string(100, 'x')), "'" + std::string(kMaxExcerpt, 'x') + "...'");
+  const std::string passwd_line = "root:x:0:0:root:/root:/bin/bash\n";
+  const ParseError not_tag = parseError(passwd_line, "/etc/passwd");
+  EXPECT_EQ(std::string(not_tag.what()),
+            "/etc/passwd:1: 'root:x:0:0:root:/root:/bin/bash' is not a tag (a data line starts with a tag such "
+            "as VERTEX_SE3:QUAT or EDGE3)");
+  EXPECT_EQ(not_tag.redactedWhat(),
+            "/etc/passwd:1: the line does not start with a tag (a data line starts with a tag such as "
+            "VERTEX_SE3:QUAT or EDGE3)");
+  const ParseError field = parseError("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 secret\n", "a.g2o");
+  EXPECT_EQ(field.redactedWhat(), "a.g2o:1: VERTEX_SE3:QUAT field 8 (qw): the value is not a number");
+  EXPECT_NE(std::string(field.what()).find("'secret'"), std::string::npos);
+  const ParseError binary = parseError("VERTEX_SE2 0 0 0 0\nab\x01\n", "a.g2o");
+  EXPECT_EQ(binary.redactedWhat(), "a.g2o:2: binary data (a control character at column 3): not a text graph file");
+  // Messages that quote nothing are the same in both forms.
+  const ParseError count = parseError("VERTEX2 0 0 0 0 9\n", "w.graph");
+  EXPECT_EQ(count.redactedWhat(), std::string(count.what()));
 }

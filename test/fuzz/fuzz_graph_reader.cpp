@@ -1,6 +1,8 @@
 // Fuzz target for the graph readers (g2o and TORO, 2D and 3D).  The first byte chooses the format
 // and the EDGE3 information order, the rest is the file text.  Properties checked:
-// - reading never crashes and fails only with ParseError (file:line: reason);
+// - reading never crashes and fails only with ParseError (file:line: reason), whose messages are
+//   printable ASCII (quoted content is sanitised) and whose redacted form quotes nothing (the
+//   node's services hand it to any ROS client);
 // - whatever is read writes out and reads back to the same counts and poses (round trip).
 #include <cstddef>
 #include <cstdint>
@@ -47,7 +49,14 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   toro::PoseGraph graph;
   try {
     graph = toro::readGraph(in, "fuzz", options);
-  } catch (const toro::ParseError&) {
+  } catch (const toro::ParseError& e) {
+    const auto printable = [](const std::string& m) {
+      for (const char c : m)
+        if (c < 0x20 || c > 0x7e) return false;
+      return true;
+    };
+    if (!printable(e.what()) || !printable(e.redactedWhat())) fail("a ParseError message is not printable ASCII");
+    if (e.redactedWhat().find('\'') != std::string::npos) fail("a redacted ParseError message quotes the file");
     return 0;  // refused with a located message: the expected outcome for garbage
   }
   // Round trip through the writer of the same family.

@@ -4,9 +4,11 @@
 #include <unistd.h>
 #include <atomic>
 #include <condition_variable>
+#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <mutex>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -345,6 +347,75 @@ TEST(MapCorrector, SaveResetLoadGivesTheSameGraph) {
   EXPECT_EQ(sa.loop_closures, sb.loop_closures);
 }
 
+// ~save_graph / ~load_graph answer anyone on the ROS network: names are confined to the node's
+// graph_directory (pipeline/graph_directory.h; every case in detail in test_graph_directory).
+TEST(MapCorrector, FileServicesAreConfinedToTheGraphDirectory) {
+  namespace fs = std::filesystem;
+  const GetStatus::Response before = client->status();
+  ASSERT_GT(before.keyframes, 0u);
+  const auto slurp = [](const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  char outside_template[] = "/tmp/toro_node_outside_XXXXXX";
+  ASSERT_NE(mkdtemp(outside_template), nullptr);
+  const fs::path outside = outside_template, dir = temp_dir;
+  const std::string victim_text = "export PATH=/usr/bin\n# a file the node must not replace\n";
+  std::ofstream(outside / "victim.g2o") << victim_text;
+  std::ofstream(dir / "notes.g2o") << victim_text;
+  fs::create_symlink(outside, dir / "out_dir");
+  fs::create_symlink(outside / "victim.g2o", dir / "out_file.g2o");
+
+  const auto refused = [&](const std::string& service, const std::string& name, const std::string& why) {
+    const GraphFile::Response r = client->graphFile(service, name);
+    EXPECT_FALSE(r.success) << service << " " << name;
+    EXPECT_NE(r.message.find(why), std::string::npos) << service << " " << name << ": " << r.message;
+    return r.message;
+  };
+  refused("save_graph", (outside / "x.g2o").string(), "is outside graph_directory " + temp_dir);
+  refused("save_graph", "../x.g2o", "is outside graph_directory");
+  refused("save_graph", "out_dir/x.g2o", "leads outside graph_directory " + temp_dir + " through a symbolic link");
+  refused("save_graph", "out_file.g2o", "through a symbolic link");
+  refused("save_graph", "notes.g2o", "refusing to replace 'notes.g2o'");
+  refused("save_graph", "", "no file name given");
+  refused("save_graph", "map.txt", "is not a graph file name");
+  EXPECT_EQ(slurp(outside / "victim.g2o"), victim_text);
+  EXPECT_EQ(slurp(dir / "notes.g2o"), victim_text);
+  EXPECT_FALSE(fs::exists(dir / "notes.g2o.stamps"));
+  EXPECT_FALSE(fs::exists(dir.parent_path() / "x.g2o"));
+  std::set<std::string> outside_files;
+  for (const auto& e : fs::directory_iterator(outside)) outside_files.insert(e.path().filename().string());
+  EXPECT_EQ(outside_files, std::set<std::string>{"victim.g2o"});
+
+  // /etc/passwd: refused, and no answer holds any of its content (nor of a copy inside).
+  const std::string passwd = slurp("/etc/passwd");
+  const std::string user = passwd.substr(0, passwd.find(':'));
+  ASSERT_FALSE(user.empty());
+  fs::create_symlink("/etc/passwd", dir / "users.g2o");
+  std::ofstream(dir / "passwd_copy.g2o") << passwd;
+  for (const std::string& m : {refused("load_graph", "/etc/passwd", "is outside graph_directory"),
+                               refused("load_graph", "../../../../../../etc/passwd", "is outside graph_directory"),
+                               refused("load_graph", "/etc/passwd.g2o", "is outside graph_directory"),
+                               refused("load_graph", "users.g2o", "through a symbolic link"),
+                               refused("load_graph", "passwd_copy.g2o", "passwd_copy.g2o:1: the line does not start with a tag")}) {
+    EXPECT_EQ(m.find(user + ":"), std::string::npos) << m;
+    EXPECT_EQ(m.find("/bin/"), std::string::npos) << m;
+  }
+  EXPECT_EQ(client->status().keyframes, before.keyframes);  // refusals change nothing
+
+  // A name relative to the directory: saved there, loaded back.
+  const GraphFile::Response saved = client->graphFile("save_graph", "relative map.g2o");
+  ASSERT_TRUE(saved.success) << saved.message;
+  EXPECT_NE(saved.message.find((dir / "relative map.g2o").string()), std::string::npos) << saved.message;
+  EXPECT_EQ(toro::readGraph((dir / "relative map.g2o").string()).numNodes(), before.keyframes);
+  EXPECT_TRUE(fs::exists(dir / "relative map.g2o.stamps"));
+  const GraphFile::Response loaded = client->graphFile("load_graph", "relative map.g2o");
+  ASSERT_TRUE(loaded.success) << loaded.message;
+  EXPECT_EQ(client->status().keyframes, before.keyframes);
+  EXPECT_EQ(client->status().constraints, before.constraints);
+  fs::remove_all(outside);
+}
+
 TEST(MapCorrector, UnknownStampRefusedFutureStampAppliedWhenOdometryArrives) {
   const GetStatus::Response before = client->status();
   LoopClosure unknown = toro_ros::testing::trueLoopClosure(scenario, 0, 10);
@@ -414,10 +485,9 @@ TEST(MapCorrector, ServicesOnAnEmptyGraphBadPathsAndWrongFramesAnswerWithTheReas
   client->publishOdometry(toro_ros::testing::odometryMsg(t0, toro::Pose3()));
   client->publishOdometry(toro_ros::testing::odometryMsg(t0 + ros::Duration(1.0), toro::Pose3::fromRollPitchYaw(2, 0, 0, 0, 0, 0)));
   ASSERT_TRUE(Client::waitFor([&] { return client->status().keyframes == 2; }));
-  const std::string unwritable = "/nonexistent_toro_dir/map.g2o";
-  const GraphFile::Response bad_save = client->graphFile("save_graph", unwritable);
+  const GraphFile::Response bad_save = client->graphFile("save_graph", "no_such_dir/map.g2o");
   EXPECT_FALSE(bad_save.success);
-  EXPECT_NE(bad_save.message.find(unwritable), std::string::npos) << bad_save.message;
+  EXPECT_NE(bad_save.message.find("there is no directory no_such_dir"), std::string::npos) << bad_save.message;
   const std::string garbage = temp_dir + "/garbage.g2o";
   std::ofstream(garbage) << "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nEDGE_SE3:QUAT 0 1 oops\n";
   const GraphFile::Response bad_load = client->graphFile("load_graph", garbage);
@@ -447,12 +517,13 @@ int main(int argc, char** argv) {
   ros::NodeHandle nh;
   ros::AsyncSpinner spinner(2);
   spinner.start();
-  char dir[] = "/tmp/toro_node_test_XXXXXX";
-  if (mkdtemp(dir) == nullptr) return 1;
-  temp_dir = dir;
+  // The node's graph_directory (map_corrector.test): the file services' names go there.
+  if (!ros::param::get("/map_corrector/graph_directory", temp_dir) || temp_dir.empty()) return 1;
+  std::filesystem::create_directories(temp_dir);
   Client c;
   client = &c;
   const int result = RUN_ALL_TESTS();
+  std::filesystem::remove_all(temp_dir);
   client = nullptr;
   spinner.stop();
   return result;

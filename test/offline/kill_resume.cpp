@@ -184,6 +184,8 @@ void setNodeParameters(const std::string& autosave) {
   ros::param::set(std::string(kNodeName) + "/load_path", autosave);
   ros::param::set(std::string(kNodeName) + "/autosave_period_sec", kAutosavePeriodSec);
   ros::param::set(std::string(kNodeName) + "/resume_link", std::string("continue"));
+  // ~save_graph below saves by name into the same directory.
+  ros::param::set(std::string(kNodeName) + "/graph_directory", fs::path(autosave).parent_path().string());
 }
 
 std::string readFile(const std::string& path) {
@@ -233,7 +235,8 @@ TEST(KillResume, KilledNodeResumesFromItsAutosaveAndLosesAtMostOnePeriod) {
   opt.request.mode = "full";
   ASSERT_TRUE(call(names::kOptimizeService, opt) && opt.response.success) << opt.response.message;
   GraphFile save;
-  save.request.path = (dir / "resumed.g2o").string();
+  save.request.path = "resumed.g2o";  // relative to graph_directory = dir
+  const std::string resumed_path = (dir / "resumed.g2o").string();
   ASSERT_TRUE(call(names::kSaveGraphService, save) && save.response.success) << save.response.message;
   const GetStatus::Response end = *status();
   EXPECT_EQ(end.time_jump_resets, 0u);
@@ -251,8 +254,8 @@ TEST(KillResume, KilledNodeResumesFromItsAutosaveAndLosesAtMostOnePeriod) {
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
   const toro::PoseGraph whole = toro::readGraph((dir / "whole" / "corrected.g2o").string());
   const Sidecar whole_side = readSidecar(sidecarPath((dir / "whole" / "corrected.g2o").string()));
-  const toro::PoseGraph again = toro::readGraph(save.request.path);
-  const Sidecar again_side = readSidecar(sidecarPath(save.request.path));
+  const toro::PoseGraph again = toro::readGraph(resumed_path);
+  const Sidecar again_side = readSidecar(sidecarPath(resumed_path));
 
   // Missing keyframes: only those after the autosave and up to the kill.
   std::map<ros::Time, std::size_t> again_index;

@@ -25,6 +25,7 @@
 #include <map>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "toro_ros/core/pose_graph.h"
@@ -35,19 +36,39 @@ enum class GraphFormat { kAuto, kG2o, kToro };
 enum class ToroInformationOrder { kTranslationFirst, kRotationFirst };
 
 // A malformed input file.  what() is "file:line: message" ("file: message" when the problem is
-// not on one line, e.g. the file cannot be opened).
+// not on one line, e.g. the file cannot be opened).  The message may quote a short excerpt of the
+// file (see excerpt()), which helps the file's owner (toro_optimize); redactedWhat() says the
+// same with no part of the file's content, for callers that answer someone who may not be allowed
+// to read the file (the node's services answer any client on the ROS network).
 class ParseError : public std::runtime_error {
  public:
-  ParseError(const std::string& file, std::size_t line, const std::string& message);
+  // `redacted_message`: `message` without the quoted content; empty when `message` quotes none.
+  ParseError(const std::string& file, std::size_t line, const std::string& message,
+             const std::string& redacted_message = "");
   const std::string& file() const { return file_; }
   std::size_t line() const { return line_; }  // 1-based; 0 when not about one line
   const std::string& message() const { return message_; }
+  const std::string& redactedMessage() const { return redacted_message_; }
+  // "file:line: " + redactedMessage().
+  const std::string& redactedWhat() const { return redacted_what_; }
 
  private:
   std::string file_;
   std::size_t line_;
   std::string message_;
+  std::string redacted_message_;
+  std::string redacted_what_;
 };
+
+// A piece of file content for an error message: in single quotes, at most kMaxExcerpt characters
+// (then "..."), every byte outside printable ASCII shown as \xNN (so no terminal control sequence
+// or invalid UTF-8 reaches a log or a terminal).
+constexpr std::size_t kMaxExcerpt = 40;
+std::string excerpt(std::string_view text);
+
+// The format a file name's extension says (case-insensitive): .g2o -> kG2o; .graph, .toro ->
+// kToro; anything else kAuto.
+GraphFormat formatFromExtension(const std::string& path);
 
 struct ReadOptions {
   // kAuto: by extension (.g2o -> g2o; .graph, .toro -> TORO), otherwise by the first data tag.

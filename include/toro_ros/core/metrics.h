@@ -3,8 +3,10 @@
 #pragma once
 
 #include <cstddef>
+#include <vector>
 
 #include "toro_ros/core/pose_graph.h"
+#include "toro_ros/core/robust_kernel.h"
 
 namespace toro {
 
@@ -28,6 +30,18 @@ struct ToroError {
   double mean_translation = 0.0;
 };
 ToroError toroError(const PoseGraph& graph);
+
+// The robust objective: sum of rho(chi2) over loop closures (isLoopClosure) and chi2 over the rest;
+// g2oChi2 when `robust` is off.
+double robustObjective(const PoseGraph& graph, const RobustOptions& robust);
+
+// Robust weight of every constraint at the current poses (1 for odometry and with `robust` off).
+std::vector<double> robustWeights(const PoseGraph& graph, const RobustOptions& robust);
+
+// Position RMSE (m) between the poses of `estimate` and `reference` (matched by node id; nodes
+// missing from either are skipped) after the rigid motion that best aligns the estimate onto the
+// reference (Horn/Umeyama without scale), so a different gauge costs nothing.  0 for < 1 node.
+double alignedPositionRmse(const PoseGraph& estimate, const PoseGraph& reference);
 
 // Per-constraint g2o chi2 (same definition as g2oChi2), e.g. to colour loop closures by residual.
 double constraintChi2(const PoseGraph& graph, std::size_t constraint_index);

@@ -25,6 +25,12 @@ struct Node {
   Pose3 pose;  // world_T_node (the current estimate)
 };
 
+// What a constraint is to the robust estimators: loop closures may be wrong and get a weight from
+// their residual (robust_kernel.h); odometry is trusted and stays Gaussian.  kAuto decides by the
+// ids: consecutive ids (|to - from| == 1) are odometry, anything else a loop closure, which is right
+// for datasets and for the pipeline's keyframes (ids by time); callers that know better say so.
+enum class ConstraintKind : unsigned char { kAuto, kOdometry, kLoopClosure };
+
 // Constraint from -> to: `measurement` is from_T_to, i.e. the pose of `to` in the frame of `from`.
 // The information matrix is ordered as in g2o: translation (x y z) first, then rotation, and the
 // rotational block is in units of the quaternion's vector part (about half the rotation angle), so
@@ -34,7 +40,14 @@ struct Constraint {
   NodeId to = 0;
   Pose3 measurement;
   Matrix6 information = Matrix6::Identity();
+  ConstraintKind kind = ConstraintKind::kAuto;
 };
+
+// Whether the robust estimators treat `c` as a loop closure (see ConstraintKind).
+inline bool isLoopClosure(const Constraint& c) {
+  if (c.kind != ConstraintKind::kAuto) return c.kind == ConstraintKind::kLoopClosure;
+  return c.to - c.from != 1 && c.from - c.to != 1;
+}
 
 // How big 2D graphs map onto the 3D graph: they are lifted into the plane z = 0, and remember
 // that they are 2D so writers and metrics can use the 2D definitions.
@@ -90,6 +103,13 @@ class PoseGraph {
 // blocks x2, and back.  Exact powers of two, so a round trip is exact.
 Matrix6 angleToQuaternionUnits(const Matrix6& information);
 Matrix6 quaternionToAngleUnits(const Matrix6& information);
+
+// An axis of a 3x3 block (translation or rotation) of an information matrix whose information is
+// below this fraction of the block's largest counts as unmeasured: a sender that marks z, roll and
+// pitch unknown with variance 1e6 gives ~1e-8 of its measured axes' information.  The optimisers'
+// scalar weights and step directions ignore such axes (TreeOptimizer), rather than weighing the
+// whole constraint by them.
+constexpr double kUnmeasuredInformationRatio = 1e-6;
 
 // Reason string for an information matrix that is unusable (non-finite, asymmetric beyond a
 // relative tolerance, or not positive definite); empty if fine.

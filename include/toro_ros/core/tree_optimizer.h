@@ -13,12 +13,18 @@
 
 #include "toro_ros/core/parameter_tree.h"
 #include "toro_ros/core/pose_graph.h"
+#include "toro_ros/core/robust_kernel.h"
 
 namespace toro {
 
 enum class InitialGuess {
   kChainOnTree,  // compose the measurements along the tree from the root (the paper's tools)
   kFromGraph,    // keep the poses stored in the graph
+  // Compose odometry (constraints that are not loop closures, isLoopClosure) outward from each
+  // component's smallest id, and loop closures only to reach what odometry does not: a wrong loop
+  // closure that is a tree edge would otherwise place a whole subtree by its wrong measurement.
+  // The start for robust estimation.
+  kChainOdometry,
 };
 
 enum class RotationUpdate {
@@ -36,6 +42,11 @@ struct TreeOptimizerOptions {
   // measurement on sphere2500, parking-garage, smallGrid3D and sphere_bignoise (bench/results.md).
   double translation_gamma = 0.1;
   RotationUpdate rotation_update = RotationUpdate::kSlerp;
+  // Robust loop closures (robust_kernel.h): each loop closure's information, in its step and in the
+  // preconditioner, is scaled by a weight from its chi2 at the start of the pass that visits it
+  // (a new one's at its arrival), so a wrong one moves the map by a weighted fraction only.
+  // Odometry (isLoopClosure() false) keeps weight 1.  Off (kNone) by default.
+  RobustOptions robust;
   // Constraints are visited in increasing level of their top node (root side first).
   // Returns an empty string when valid, else what is wrong.
   std::string validate() const;
@@ -75,6 +86,18 @@ class TreeOptimizer {
   // Forgets what counts as "new" for iterateAffected() without a full pass.
   void clearAffected();
 
+  // Robust weight of each constraint (1 for odometry and when robust estimation is off), as used by
+  // the last pass that visited it (or at its arrival), by constraint index.
+  const std::vector<double>& weights() const { return robust_weight_; }
+  // Whether constraint c is weighted robustly (a loop closure with options().robust enabled).
+  bool isRobust(std::size_t c) const { return robust_[c] != 0; }
+  // Recomputes the robust weights of all loop closures from the current poses (a full pass does
+  // this itself first); returns how many changed noticeably.
+  std::size_t refreshWeights();
+  // Changes the robust kernel's width (graduated robustness: a wide kernel first, narrowed over
+  // iterations); takes effect at the next weight refresh.
+  void setRobustWidth(double width) { options_.robust.width = width; }
+
   // The graph with the current pose estimates.
   const PoseGraph& graph() const { return graph_; }
   const ParameterTree& tree() const { return tree_; }
@@ -84,6 +107,7 @@ class TreeOptimizer {
 
  private:
   void chainInitialGuess();
+  void chainOdometryGuess();
   void parametersFromPoses();
   void updateConstraint(std::size_t c, double learning_rate);
   void distributeRotation(std::size_t c, double learning_rate);
@@ -97,6 +121,11 @@ class TreeOptimizer {
   void registerConstraint(std::size_t c);
   std::vector<std::size_t> sortedByTopLevel(std::vector<std::size_t> constraints);
   void runPass(const std::vector<std::size_t>& constraints, double learning_rate);
+  // Robust weights of the given constraints from the current poses; the preconditioner follows
+  // (incrementally) when a weight changed by more than a tolerance.  Returns how many changed.
+  std::size_t refreshWeights(const std::vector<std::size_t>& constraints);
+  void setWeight(std::size_t c, double weight);
+  void adjustPreconditioner(std::size_t c, double rotation_delta, double translation_delta);
 
   TreeOptimizerOptions options_;
   PoseGraph graph_;
@@ -107,8 +136,24 @@ class TreeOptimizer {
   std::vector<double> inverse_rotation_weight_;      // 1 / rotation_weight_, kept beside it
   std::vector<double> inverse_translation_weight_;
   std::vector<std::size_t> from_index_, to_index_;  // dense endpoints per constraint
-  std::vector<double> constraint_rotation_info_;     // scalar information per constraint
+  // Scalar information per constraint (block_stiffness.h): base_* as the information gives it,
+  // constraint_* = base * robust weight, used by the steps and the preconditioner.
+  std::vector<double> base_rotation_info_, base_translation_info_;
+  std::vector<double> constraint_rotation_info_;
   std::vector<double> constraint_translation_info_;
+  std::vector<double> robust_weight_;  // per constraint, 1 unless robust_
+  std::vector<double> preconditioned_weight_;  // the weight whose share the preconditioner holds
+  std::vector<char> robust_;           // per constraint: a loop closure weighted robustly
+  // Constraints with unmeasured axes move only along their measured ones: projectors in the frame
+  // of the constraint (its "to" end), kept only for them (index into measured_axes_, or -1).
+  struct MeasuredAxes {
+    Matrix3 translation = Matrix3::Identity();
+    Matrix3 rotation = Matrix3::Identity();
+    bool translation_partial = false;
+    bool rotation_partial = false;
+  };
+  std::vector<int> measured_axes_index_;
+  std::vector<MeasuredAxes> measured_axes_;
   std::vector<std::size_t> order_;       // constraints sorted by top-node level
   std::vector<int> top_level_;           // level of each constraint's top node (refreshStructure)
   bool structure_dirty_ = true;          // tree changed since refreshStructure()

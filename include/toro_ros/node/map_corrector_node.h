@@ -25,6 +25,7 @@
 #include "toro_ros/Optimize.h"
 #include "toro_ros/node/node_options.h"
 #include "toro_ros/node/pipeline_worker.h"
+#include "toro_ros/pipeline/graph_directory.h"
 #include "toro_ros/pipeline/input_table.h"
 #include "toro_ros/pipeline/pipeline.h"
 
@@ -69,6 +70,8 @@ class MapCorrectorNode {
   ros::NodeHandle nh_, private_nh_;
   std::vector<std::string> unknown_parameters_;  // private keys nobody reads (shown in diagnostics)
   NodeOptions options_;
+  // ~save_graph / ~load_graph names are confined to it (set before the services are advertised).
+  GraphDirectory graph_directory_;
   std::unique_ptr<PipelineWorker> worker_;
 
   // Visualisation timer state (only its callback touches these).

@@ -26,6 +26,10 @@ struct NodeOptions {
   // file is a first run (logged); an unreadable or malformed one stops the node (it might be the
   // autosave of the map the user wants, which must not be overwritten).
   std::string load_path;
+  // Where ~save_graph and ~load_graph read and write (names are relative to it; nothing outside it
+  // is touched for a service) and what relative load_path / autosave_path are taken from.  "":
+  // defaultGraphDirectory() ($ROS_HOME/toro_ros or ~/.ros/toro_ros); see pipeline/graph_directory.h.
+  std::string graph_directory;
   PipelineOptions pipeline;
   MarkerOptions markers;
   std::string validate() const;

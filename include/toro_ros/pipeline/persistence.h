@@ -9,9 +9,11 @@
 //     refused, the measurement from_T_to and the upper triangle of its g2o-ordered information)
 #pragma once
 
+#include <iosfwd>
 #include <string>
 #include <vector>
 
+#include "toro_ros/pipeline/graph_file.h"
 #include "toro_ros/pipeline/loop_closure_matcher.h"
 #include "toro_ros/pipeline/snapshot.h"
 
@@ -28,21 +30,26 @@ struct Sidecar {
 std::string sidecarPath(const std::string& graph_path);
 // Throws std::runtime_error naming the path if it cannot be written.
 void writeSidecar(const std::string& path, const Sidecar& sidecar);
-// Throws std::runtime_error "path:line: why" for a malformed line or an unreadable file.
+void writeSidecar(std::ostream& out, const Sidecar& sidecar);
+// Throws toro::ParseError "source:line: why" for a malformed line or an unreadable file (an
+// unknown tag is quoted as toro::excerpt; ParseError::redactedWhat has it without).
 Sidecar readSidecar(const std::string& path);
+Sidecar readSidecar(std::istream& in, const std::string& source);
+Sidecar readSidecarFile(const GraphFileRef& file);
 
-// A temporary name in the same directory with the same extension (the graph format goes by it):
-// "dir/name.g2o" -> "dir/.name.tmp<pid>.g2o".
-std::string temporaryPath(const std::string& path);
-// Flushes the file's data to the disk (fsync) and renames it over `path`, then syncs the
-// directory, so that a crash leaves either the old or the new file, never a partial one.
-// Throws std::runtime_error naming the path.
-void commitFile(const std::string& temporary, const std::string& path);
+// Empty when a save may replace what is at `graph` and its sidecar: for each, nothing, or a
+// regular file that reads as a graph (the graph) or as a keyframe sidecar (the sidecar).  Else
+// why not ("... is not a graph file: <line and problem>"), so that a save given the name of
+// something else (a text file, a configuration, a link) refuses instead of destroying it.
+std::string checkReplaceable(const GraphFileRef& graph);
 
 // load_path on start (node and offline runner alike).  Returns a line for the log: "" for an empty
 // path, "starting a new map" when the file does not exist yet (the first run of an autosave that
 // is also the load_path), else what was resumed.  Throws std::runtime_error when the file exists
-// but cannot be loaded: the owner must stop rather than start empty and autosave over it.
-std::string loadOnStart(Pipeline& pipeline, const std::string& path);
+// but cannot be loaded: the owner must stop rather than start empty and autosave over it; and
+// when the pipeline's autosave_path holds something checkReplaceable refuses (a typo in the path
+// must not make the autosave destroy another file).  `quote_content` false: the messages quote
+// neither file (see GraphFileRef).
+std::string loadOnStart(Pipeline& pipeline, const std::string& path, bool quote_content = true);
 
 }  // namespace toro_ros

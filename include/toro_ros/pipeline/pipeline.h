@@ -17,6 +17,7 @@
 
 #include "toro_ros/LoopClosure.h"
 #include "toro_ros/core/tree_optimizer.h"
+#include "toro_ros/pipeline/graph_file.h"
 #include "toro_ros/pipeline/keyframer.h"
 #include "toro_ros/pipeline/loop_closure_matcher.h"
 #include "toro_ros/pipeline/odometry_history.h"
@@ -151,8 +152,12 @@ class Pipeline {
   // loaded keyframes by options().persistence.resume_link.  Loop closures sent (header stamp) at
   // or before that keyframe are refused too, so replaying a bag from its start into the resumed
   // map does not add its loop closures twice.
+  // The path overloads take an operator's path (GraphFileRef(path)); the node's services pass a
+  // file GraphDirectory confined to its directory (errors about it never quote its content).
   std::string saveGraph(const std::string& path) const;
+  std::string saveGraph(const GraphFileRef& file) const;
   std::string loadGraph(const std::string& path);
+  std::string loadGraph(const GraphFileRef& file);
   // Saves to persistence.autosave_path now if it is set and the graph changed since the last
   // autosave (the node calls it on shutdown).  Empty string when saved or nothing to do.
   std::string autosave();
