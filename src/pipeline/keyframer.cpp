@@ -172,7 +172,8 @@ std::string Keyframer::ruleDescription() const {
   }
   switch (mode) {
     case OdometryCovarianceMode::kDifference:
-      out += " -> step covariance = covariance(newer) - covariance(older) on the axes that grew";
+      out += " -> step covariance = covariance(newer) - covariance(older) carried to the newer pose, on the axes "
+             "that grew";
       break;
     case OdometryCovarianceMode::kMotionScaled:
       out += " -> step covariance = message covariance x (metres + radians moved)";

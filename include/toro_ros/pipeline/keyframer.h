@@ -20,7 +20,7 @@ enum class OdometryCovarianceMode {
   // two messages (an EKF or dead reckoning whose covariance grows), kMotionScaled while it is the
   // same in every message (diff_drive_controller publishes its configured pose_covariance_diagonal).
   kAuto,
-  kDifference,    // covariance(newer) - covariance(older), on the axes where it grew
+  kDifference,    // covariance(newer) - covariance(older) carried to the newer pose, where it grew
   kMotionScaled,  // covariance(newer) x the step's motion (m + rad): a per-metre covariance
   kLatest,        // covariance(newer) as the covariance of the step (a per-step covariance)
   kDefault,       // always the configured defaults
