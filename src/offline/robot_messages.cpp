@@ -78,8 +78,11 @@ nav_msgs::Odometry odometryAtSample(const RobotTimeline& t, long sample, const G
     const long n = t.sample_of_keyframe[k + 1] - t.sample_of_keyframe[k];
     const double f = static_cast<double>(sample - t.sample_of_keyframe[k]) / static_cast<double>(n);
     if (f > 0) {
+      // The step's covariance accrues at a constant rate in the odom frame (as it is added at the
+      // keyframe, rotated by the step's end pose), so the covariance of any two samples differs
+      // by a positive semi-definite growth, also across a turn on the spot.
       pose = toro::slerp(t.odom_T_base[k], t.odom_T_base[k + 1], f);
-      const toro::Matrix6 b = blockRotation(pose);
+      const toro::Matrix6 b = blockRotation(t.odom_T_base[k + 1]);
       covariance = carriedCovariance(covariance, pose.translation() - t.odom_T_base[k].translation()) +
                    f * b * t.step_covariance[k] * b.transpose();
     }

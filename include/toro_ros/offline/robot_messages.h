@@ -22,7 +22,8 @@ void addCovariances(const toro::PoseGraph& graph, RobotTimeline* t);
 
 
 // Odometry sample `sample` (0 .. last keyframe's sample): the pose interpolated between the two
-// keyframes around it, the covariance grown along the chain, the twist of the current step.
+// keyframes around it, the covariance grown along the chain (carried, plus the current step's
+// covariance in proportion), the twist of the current step.
 nav_msgs::Odometry odometryAtSample(const RobotTimeline& t, long sample, const GraphToBagOptions& o);
 tf2_msgs::TFMessage tfFromOdometry(const nav_msgs::Odometry& odom);
 
