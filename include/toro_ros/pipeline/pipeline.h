@@ -74,8 +74,8 @@ struct PipelineOptions {
   // Odometry more than this older than the newest resets the graph (a bag restarted); smaller
   // steps back are refused as out of order.
   double time_jump_reset_sec = 1.0;
-  // Full-rate odometry kept to move a loop closure from the stamps it names onto its keyframes (the
-  // motion between a stamp and its keyframe); older stamps use the keyframes' odometry poses.
+  // Odometry kept at full rate to move a loop closure from the stamps it names onto its keyframes
+  // (the motion between a stamp and its keyframe); older messages are thinned (odometry_history.h).
   double odometry_history_sec = 60.0;
   // Loop-closure gate (see pipeline_gate.cpp): after a new loop closure's affected pass, its g2o
   // chi2 must not exceed the chi-square quantile with 6 degrees of freedom at this confidence, else
