@@ -33,7 +33,9 @@ int runMakePlanarRobot(int argc, char** argv) {
     PlanarRobotOptions o;
     const std::string style = args.text("style", toString(o.covariance_style));
     const auto parsed = odometryCovarianceStyleFromString(style);
-    if (!parsed) throw std::invalid_argument("--style: expected constant, ekf_two_d, ekf_two_d_zero or zero, got '" + style + "'");
+    if (!parsed)
+      throw std::invalid_argument("--style: expected constant, ekf_two_d, ekf_two_d_zero or zero, got '" +
+                                  style + "'");
     o.covariance_style = *parsed;
     o.laps = args.integer("laps", o.laps);
     o.seed = static_cast<std::uint32_t>(args.integer("seed", static_cast<int>(o.seed)));

@@ -109,7 +109,8 @@ void addOdometry(const PlanarRobotOptions& o, std::mt19937& rng, PlanarRobot* ro
       const double uy = (1 + o.odometry_scale_error) * step.translation().y() + st * unit(rng);
       const double ua = a + o.odometry_yaw_bias_rad_per_m * d + sa * unit(rng);
       reading = toro::Pose3::fromRollPitchYaw(ux, uy, 0, 0, 0, ua);
-      propagate(&state, odom.rollPitchYaw().z(), ux, uy, Eigen::Vector3d(st * st, st * st, sa * sa).asDiagonal());
+      propagate(&state, odom.rollPitchYaw().z(), ux, uy,
+                Eigen::Vector3d(st * st, st * st, sa * sa).asDiagonal());
       odom = odom * reading;
     }
     robot->truth.push_back(truth);
@@ -250,8 +251,10 @@ std::vector<std::string> writePlanarRobot(const PlanarRobot& robot, const std::s
     odometry.addNode(id, odom_T_base);
     sidecar.keyframes.push_back(KeyframeRecord{id, robot.odometry[k].header.stamp, odom_T_base});
     if (k == 0) continue;
-    truth.addConstraint({id - 1, id, toro::relativePose(robot.truth[k - 1], robot.truth[k]), toro::Matrix6::Identity()});
-    odometry.addConstraint({id - 1, id, toro::relativePose(odometry.pose(id - 1), odom_T_base), toro::Matrix6::Identity()});
+    truth.addConstraint(
+        {id - 1, id, toro::relativePose(robot.truth[k - 1], robot.truth[k]), toro::Matrix6::Identity()});
+    odometry.addConstraint(
+        {id - 1, id, toro::relativePose(odometry.pose(id - 1), odom_T_base), toro::Matrix6::Identity()});
   }
   toro::writeGraph(truth, stem + ".truth.g2o");
   toro::writeGraph(odometry, stem + ".odometry.g2o");

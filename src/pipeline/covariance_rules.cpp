@@ -57,9 +57,8 @@ Eigen::MatrixXd blockInformation(const toro::Matrix6& covariance, const std::vec
     // Shrink every correlation by the same factor, towards none, until the smallest eigenvalue is
     // kRepairedCorrelationEigenvalue: the eigenvectors stay, the variances stay, and no
     // combination of axes gets more than 1 / that times the information its axes give.
-    const double alpha = eigen.info() == Eigen::Success
-                             ? (kRepairedCorrelationEigenvalue - smallest) / (1.0 - smallest)
-                             : 1.0;
+    const double alpha =
+        eigen.info() == Eigen::Success ? (kRepairedCorrelationEigenvalue - smallest) / (1.0 - smallest) : 1.0;
     const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(n, n);
     correlation = (1.0 - alpha) * correlation + alpha * identity;
   }
@@ -116,7 +115,8 @@ InformationResult informationFromAxes(const toro::Matrix6& covariance, const Axi
   std::vector<int> block;  // axes inverted together: a finite positive variance, measured or not
   for (int i = 0; i < 6; ++i) {
     const double v = covariance(i, i);
-    if (out.axes[i] != AxisReading::kUnknown && !(v > 0 && !std::isnan(v))) out.axes[i] = AxisReading::kUnknown;
+    if (out.axes[i] != AxisReading::kUnknown && !(v > 0 && !std::isnan(v)))
+      out.axes[i] = AxisReading::kUnknown;
     if (out.axes[i] == AxisReading::kMeasured && !std::isfinite(v)) out.axes[i] = AxisReading::kUnmeasured;
     if (out.axes[i] == AxisReading::kUnknown) {
       const double stddev = i < 3 ? defaults.translation_m : defaults.rotation_rad;

@@ -32,11 +32,11 @@ bool sameCovariance(const toro::Matrix6& a, const toro::Matrix6& b) {
 // kDifference: the growth of the covariance over the step, covariance(newer) - F covariance(older)
 // F^T with F carrying the older one to the newer pose (carriedCovariance: an EKF's prediction; the
 // plain difference of a real EKF's covariances is indefinite in most steps, because a heading
-// error before the step moves the newer position sideways), read on the axes where it is meaningful.  An axis that
-// grew is read from its growth, however large the accumulated variance (dead reckoning's grows
-// without bound).  One that did not grow says nothing about the step: unmeasured if the sender
-// marks it so (a variance >= the threshold, e.g. pinned at 1e6), else unknown and the default (an
-// EKF's two_d_mode z, roll and pitch held at 1e-6 or 0; a variance an absolute fix shrank).
+// error before the step moves the newer position sideways), read on the axes where it is meaningful.  An axis
+// that grew is read from its growth, however large the accumulated variance (dead reckoning's grows without
+// bound).  One that did not grow says nothing about the step: unmeasured if the sender marks it so (a
+// variance >= the threshold, e.g. pinned at 1e6), else unknown and the default (an EKF's two_d_mode z, roll
+// and pitch held at 1e-6 or 0; a variance an absolute fix shrank).
 InformationResult differenceInformation(const toro::Matrix6& older, const toro::Matrix6& newer,
                                         const toro::Vector3& displacement, const KeyframerOptions& o) {
   // The older covariance carried to the newer pose first, as an EKF's prediction carries it, so
@@ -172,8 +172,10 @@ std::string Keyframer::ruleDescription() const {
   }
   switch (mode) {
     case OdometryCovarianceMode::kDifference:
-      out += " -> step covariance = covariance(newer) - covariance(older) carried to the newer pose, on the axes "
-             "that grew";
+      out +=
+          " -> step covariance = covariance(newer) - covariance(older) carried to the newer pose, on the "
+          "axes "
+          "that grew";
       break;
     case OdometryCovarianceMode::kMotionScaled:
       out += " -> step covariance = message covariance x (metres + radians moved)";
@@ -198,8 +200,9 @@ InformationResult Keyframer::stepInformation(const OdometrySample& older, const 
     case OdometryCovarianceMode::kDifference:
       // A reference from a loaded graph has a NaN covariance (it is not saved): its axes are
       // unknown, so the step takes the defaults there.
-      out = differenceInformation(older.covariance, newer.covariance,
-                                  newer.odom_T_base.translation() - older.odom_T_base.translation(), options_);
+      out =
+          differenceInformation(older.covariance, newer.covariance,
+                                newer.odom_T_base.translation() - older.odom_T_base.translation(), options_);
       out.information = toBodyFrame(out.information, newer.odom_T_base);
       return out;
     case OdometryCovarianceMode::kMotionScaled:
@@ -207,7 +210,8 @@ InformationResult Keyframer::stepInformation(const OdometrySample& older, const 
       out.information = toBodyFrame(out.information, newer.odom_T_base);
       return out;
     case OdometryCovarianceMode::kLatest:
-      out = informationFromCovariance(newer.covariance, options_.default_stddev, options_.unmeasured_variance);
+      out =
+          informationFromCovariance(newer.covariance, options_.default_stddev, options_.unmeasured_variance);
       out.information = toBodyFrame(out.information, newer.odom_T_base);
       return out;
     case OdometryCovarianceMode::kDefault:

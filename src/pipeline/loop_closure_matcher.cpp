@@ -44,8 +44,9 @@ std::optional<toro::NodeId> KeyframeIndex::nearest(const ros::Time& stamp, doubl
 
 std::optional<toro::NodeId> KeyframeIndex::attach(const ros::Time& stamp, double tolerance_sec) const {
   if (records_.empty()) return std::nullopt;
-  const auto after = std::lower_bound(records_.begin(), records_.end(), stamp,
-                                      [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
+  const auto after =
+      std::lower_bound(records_.begin(), records_.end(), stamp,
+                       [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
   if (after == records_.end()) return records_.back().id;
   if (after == records_.begin() || after->stamp == stamp || after->after_gap)
     return nearest(stamp, tolerance_sec);
@@ -54,9 +55,11 @@ std::optional<toro::NodeId> KeyframeIndex::attach(const ros::Time& stamp, double
 }
 
 std::optional<toro::Pose3> KeyframeIndex::odometryAt(const ros::Time& stamp) const {
-  if (records_.empty() || stamp < records_.front().stamp || stamp > records_.back().stamp) return std::nullopt;
-  const auto after = std::lower_bound(records_.begin(), records_.end(), stamp,
-                                      [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
+  if (records_.empty() || stamp < records_.front().stamp || stamp > records_.back().stamp)
+    return std::nullopt;
+  const auto after =
+      std::lower_bound(records_.begin(), records_.end(), stamp,
+                       [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
   if (after->stamp == stamp) return after->odom_T_base;
   if (after->after_gap) return std::nullopt;
   const KeyframeRecord& before = *(after - 1);
@@ -119,8 +122,9 @@ MatchResult LoopClosureMatcher::matchNow(const LoopClosure& msg, const KeyframeI
     for (const auto& [id, stamp] : {std::pair{from, msg.stamp_from}, std::pair{to, msg.stamp_to}})
       if (!id)
         return refused(refusal::kNoKeyframe,
-                       "stamp " + stampString(stamp) + " is before the first keyframe or in a gap of the "
-                       "trajectory (before a resumed map's new odometry), and no keyframe is within " +
+                       "stamp " + stampString(stamp) +
+                           " is before the first keyframe or in a gap of the "
+                           "trajectory (before a resumed map's new odometry), and no keyframe is within " +
                            std::to_string(options_.stamp_tolerance_sec) + " s of it");
     if (*from == *to) {
       // Two stamps nearest to one keyframe: the later end moves on to the next keyframe (or the

@@ -42,12 +42,14 @@ void OdometryHistory::retire(const Sample& sample) {
     // and every message dropped since, where they were; else it is kept.
     const Sample& kept = trace_.back();
     auto fits = [&](const Sample& s) {
-      const toro::Pose3 guess = interpolate(kept.stamp, kept.odom_T_base, sample.stamp, sample.odom_T_base, s.stamp);
+      const toro::Pose3 guess =
+          interpolate(kept.stamp, kept.odom_T_base, sample.stamp, sample.odom_T_base, s.stamp);
       const toro::Pose3 error = toro::relativePose(guess, s.odom_T_base);
       return error.translation().norm() <= kTraceTolerance.translation_m &&
              error.angle() <= kTraceTolerance.rotation_rad;
     };
-    const bool drop = dropped_.size() < kMaxDropped && fits(*pending_) && std::all_of(dropped_.begin(), dropped_.end(), fits);
+    const bool drop = dropped_.size() < kMaxDropped && fits(*pending_) &&
+                      std::all_of(dropped_.begin(), dropped_.end(), fits);
     if (drop) {
       dropped_.push_back(*pending_);
     } else {

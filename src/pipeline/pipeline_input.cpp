@@ -66,8 +66,9 @@ void Pipeline::countLoopClosureInformation(const InformationResult& information)
       std::find(logged.begin(), logged.end(), information.axes) != logged.end())
     return;
   logged_loop_closure_axes_.push_back(information.axes);
-  const std::string line = "loop closure covariance: " + loop_closure_rule_ +
-                           (logged.size() == kMaxLoggedLoopClosureReadings ? " (further readings not logged)" : "");
+  const std::string line =
+      "loop closure covariance: " + loop_closure_rule_ +
+      (logged.size() == kMaxLoggedLoopClosureReadings ? " (further readings not logged)" : "");
   if (information.default_axes > 0 && warn_)
     warn_(line);
   else if (info_)

@@ -60,11 +60,11 @@ void replayWithDefaults(const std::string& name, bool far_stamps_expected) {
   runner.run();
   const PipelineStatus s = runner.pipeline().status();
   const PipelineCounters& c = s.counters;
-  std::printf("%s: %zu keyframes (the file has %zu nodes), %llu loop closures received, %llu applied, %llu refused\n",
-              name.c_str(), s.keyframes, written.keyframes,
-              static_cast<unsigned long long>(c.loop_closures_received),
-              static_cast<unsigned long long>(c.loop_closures_applied),
-              static_cast<unsigned long long>(c.loop_closures_refused));
+  std::printf(
+      "%s: %zu keyframes (the file has %zu nodes), %llu loop closures received, %llu applied, %llu refused\n",
+      name.c_str(), s.keyframes, written.keyframes, static_cast<unsigned long long>(c.loop_closures_received),
+      static_cast<unsigned long long>(c.loop_closures_applied),
+      static_cast<unsigned long long>(c.loop_closures_refused));
   for (const auto& [reason, n] : c.refused_by_reason)
     std::printf("  %s: %llu\n", reason.c_str(), static_cast<unsigned long long>(n));
   EXPECT_EQ(c.loop_closures_received, written.loop_closures);

@@ -44,7 +44,7 @@ struct TempDir {
 struct Replay {
   PipelineStatus status;
   Score score;
-  double max_abs_z_m = 0.0;  // of the corrected keyframes
+  double max_abs_z_m = 0.0;      // of the corrected keyframes
   std::size_t scan_stamped = 0;  // loop-closure stamps that are neither an odometry nor a keyframe stamp
 };
 
@@ -75,17 +75,18 @@ Replay replay(const PlanarRobotOptions& options) {
   for (const KeyframeRecord& k : p.keyframes().records()) taken.insert(k.stamp);
   for (const auto& [when, lc] : robot.loop_closures)
     r.scan_stamped += !taken.count(lc.stamp_from) + !taken.count(lc.stamp_to);
-  std::printf("%s%s: %zu keyframes, %llu/%llu loop closures applied; odometry steps default %llu, partly %llu, "
-              "repaired %llu; RMSE %.4f m (odometry %.3f m), aligned %.4f m; max |z| %.4f m\n  rule: %s\n",
-              toString(options.covariance_style).c_str(),
-              options.loop_closure_out_of_plane_stddev > 0 ? " + out-of-plane noise" : "", r.status.keyframes,
-              static_cast<unsigned long long>(r.status.counters.loop_closures_applied),
-              static_cast<unsigned long long>(r.status.counters.loop_closures_received),
-              static_cast<unsigned long long>(r.status.counters.odometry_steps_default),
-              static_cast<unsigned long long>(r.status.counters.odometry_steps_partly_default),
-              static_cast<unsigned long long>(r.status.counters.odometry_steps_repaired), r.score.corrected.rmse_m,
-              r.score.odometry.rmse_m, r.score.corrected.rmse_aligned_m, r.max_abs_z_m,
-              r.status.odometry_covariance_rule.c_str());
+  std::printf(
+      "%s%s: %zu keyframes, %llu/%llu loop closures applied; odometry steps default %llu, partly %llu, "
+      "repaired %llu; RMSE %.4f m (odometry %.3f m), aligned %.4f m; max |z| %.4f m\n  rule: %s\n",
+      toString(options.covariance_style).c_str(),
+      options.loop_closure_out_of_plane_stddev > 0 ? " + out-of-plane noise" : "", r.status.keyframes,
+      static_cast<unsigned long long>(r.status.counters.loop_closures_applied),
+      static_cast<unsigned long long>(r.status.counters.loop_closures_received),
+      static_cast<unsigned long long>(r.status.counters.odometry_steps_default),
+      static_cast<unsigned long long>(r.status.counters.odometry_steps_partly_default),
+      static_cast<unsigned long long>(r.status.counters.odometry_steps_repaired), r.score.corrected.rmse_m,
+      r.score.odometry.rmse_m, r.score.corrected.rmse_aligned_m, r.max_abs_z_m,
+      r.status.odometry_covariance_rule.c_str());
   return r;
 }
 
@@ -159,7 +160,8 @@ TEST(PlanarRobot, ConstantCovarianceLikeDiffDriveController) {
 }
 
 TEST(PlanarRobot, GrowingCovarianceLikeRobotLocalizationTwoDMode) {
-  for (OdometryCovarianceStyle s : {OdometryCovarianceStyle::kEkfTwoD, OdometryCovarianceStyle::kEkfTwoDZero}) {
+  for (OdometryCovarianceStyle s :
+       {OdometryCovarianceStyle::kEkfTwoD, OdometryCovarianceStyle::kEkfTwoDZero}) {
     const Replay r = replay(style(s));
     expectCommon(r);
     const PipelineCounters& c = r.status.counters;

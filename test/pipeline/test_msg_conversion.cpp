@@ -163,7 +163,8 @@ TEST(MsgConversion, IndefiniteCorrelationsAreShrunkKeepingTheVariances) {
   cov(0, 1) = cov(1, 0) = 0.999999 * std::sqrt(0.04 * 0.01);
   const InformationResult kept = informationFromCovariance(cov, DefaultStddev{});
   EXPECT_FALSE(kept.repaired);
-  EXPECT_LT((toro::quaternionToAngleUnits(kept.information) - cov.inverse()).norm(), 1e-6 * cov.inverse().norm());
+  EXPECT_LT((toro::quaternionToAngleUnits(kept.information) - cov.inverse()).norm(),
+            1e-6 * cov.inverse().norm());
 }
 
 TEST(MsgConversion, UnmeasuredAxesKeepTheirCorrelations) {

@@ -111,7 +111,8 @@ TEST(StampAttachment, AStampAfterTheNewestKeyframeUsesTheNewestOdometry) {
   PipelineOptions o = defaultsWithHistory(0.0);
   o.matcher.create_keyframes = false;
   Pipeline p(o);
-  for (int i = 0; i <= 40; ++i) p.handleOdometry(odometryMsg(ros::Time(kStart + i / kRate), circleAt(i / kRate)));
+  for (int i = 0; i <= 40; ++i)
+    p.handleOdometry(odometryMsg(ros::Time(kStart + i / kRate), circleAt(i / kRate)));
   const ros::Time newest = p.keyframes().newest().stamp;
   ASSERT_LT(newest, ros::Time(kStart + 2.0));
   const double to = 2.0 - 0.5 * (2.0 - (newest - ros::Time(kStart)).toSec());  // halfway to "now"
@@ -121,13 +122,14 @@ TEST(StampAttachment, AStampAfterTheNewestKeyframeUsesTheNewestOdometry) {
   const toro::Pose3 truth = toro::relativePose(circleAt(0.0), circleAt((newest - ros::Time(kStart)).toSec()));
   // The chord between the keyframe and "now" is 6 mm from the arc at most.
   EXPECT_LT(toro::relativePose(truth, c.measurement).translation().norm(), 0.01);
-  EXPECT_GT(toro::relativePose(circleAt(0.0), circleAt(to)).translation().norm() -
-                truth.translation().norm(), 0.03);  // the stamp is well past the keyframe
+  EXPECT_GT(toro::relativePose(circleAt(0.0), circleAt(to)).translation().norm() - truth.translation().norm(),
+            0.03);  // the stamp is well past the keyframe
 }
 
 TEST(StampAttachment, TheToleranceGuardsStampsBeforeTheFirstKeyframe) {
   Pipeline p(defaultsWithHistory(60.0));
-  for (int i = 0; i <= 100; ++i) p.handleOdometry(odometryMsg(ros::Time(kStart + i / kRate), circleAt(i / kRate)));
+  for (int i = 0; i <= 100; ++i)
+    p.handleOdometry(odometryMsg(ros::Time(kStart + i / kRate), circleAt(i / kRate)));
   p.handleLoopClosure(trueLoopClosure(-0.2, 4.0));  // 0.2 s before the first odometry: attached
   p.handleLoopClosure(trueLoopClosure(-0.3, 4.5));  // 0.3 s before: refused
   const PipelineCounters c = p.status().counters;
@@ -155,7 +157,8 @@ void checkGapBeforeAResumedMap(ResumeLink link) {
   const double restart = 40.0;
   for (int i = 0; i <= 200; ++i) {
     const double t = restart + i / kRate;
-    p.handleOdometry(odometryMsg(ros::Time(kStart + t), circleAt(link == ResumeLink::kContinue ? t : t - restart)));
+    p.handleOdometry(
+        odometryMsg(ros::Time(kStart + t), circleAt(link == ResumeLink::kContinue ? t : t - restart)));
   }
   LoopClosure in_gap = trueLoopClosure(5.0, 25.0);  // 25 s: between the runs
   in_gap.header.stamp = ros::Time(kStart + restart + 10.05);

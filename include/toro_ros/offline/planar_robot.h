@@ -74,7 +74,7 @@ struct PlanarRobotOptions {
 };
 
 struct PlanarRobot {
-  std::vector<nav_msgs::Odometry> odometry;                  // in stamp order, frame odom -> base_link
+  std::vector<nav_msgs::Odometry> odometry;                      // in stamp order, frame odom -> base_link
   std::vector<std::pair<ros::Time, LoopClosure>> loop_closures;  // (publish time, message), in time order
   std::vector<toro::Pose3> truth;  // world_T_base at each odometry stamp; world = odom at the start
   double path_length_m = 0.0;

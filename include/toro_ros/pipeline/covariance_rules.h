@@ -46,7 +46,7 @@ struct InformationResult {
   toro::Matrix6 information;  // g2o order, rotation block in quaternion-vector units
   AxisReadings axes{AxisReading::kUnknown, AxisReading::kUnknown, AxisReading::kUnknown,
                     AxisReading::kUnknown, AxisReading::kUnknown, AxisReading::kUnknown};
-  int default_axes = 0;      // axes that took the default (kUnknown)
+  int default_axes = 0;       // axes that took the default (kUnknown)
   bool used_default = false;  // all six did (nothing in the covariance was usable)
   bool repaired = false;      // correlations were shrunk, averaged or dropped
   std::string reason;         // why axes took defaults or were repaired (empty otherwise)

@@ -1,7 +1,8 @@
 // Which keyframes a loop closure names: by id, or by stamps.  A stamp inside the trajectory attaches
 // to the keyframe nearest in time, however far (the pipeline moves the measurement onto it with the
 // odometry between the two); the tolerance only guards stamps before the first keyframe and in a
-// gap of the trajectory (KeyframeRecord::after_gap).  Stamps later than the newest odometry wait in a bounded pending list.
+// gap of the trajectory (KeyframeRecord::after_gap).  Stamps later than the newest odometry wait in a bounded
+// pending list.
 #pragma once
 
 #include <cstddef>
@@ -64,7 +65,7 @@ struct LoopClosureMatchOptions {
   // Stamps before the first keyframe (or in a gap of the trajectory) attach to the nearest
   // keyframe only within this; a pending stamp waits at most this long for a nearer keyframe.
   double stamp_tolerance_sec = 0.25;
-  std::size_t max_pending = 200;      // loop closures waiting for odometry to reach their stamps
+  std::size_t max_pending = 200;  // loop closures waiting for odometry to reach their stamps
   // Make a keyframe from the odometry sample at (or just after) a loop closure's stamp when no
   // keyframe is nearer.  Exact and quick, but keyframing then depends on when a loop closure
   // arrives relative to the odometry, so a live run and an offline replay of the same bag can

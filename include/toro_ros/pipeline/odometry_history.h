@@ -38,7 +38,7 @@ class OdometryHistory {
   // before the first or after the newest message.
   std::optional<toro::Pose3> at(const ros::Time& stamp) const;
   void clear();
-  std::size_t size() const { return recent_.size(); }          // messages kept at full rate
+  std::size_t size() const { return recent_.size(); }                           // messages kept at full rate
   std::size_t traceSize() const { return trace_.size() + (pending_ ? 1 : 0); }  // thinned older ones
 
  private:
