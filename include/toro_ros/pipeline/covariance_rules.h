@@ -8,6 +8,7 @@
 //     the core's optimisers can tell such axes by their information;
 //   - zero, negative or not finite (unknown axis): the sender said nothing; that axis alone takes the
 //     configured default standard deviation, uncorrelated (an infinite variance is unmeasured).
+// Variances are clamped to [1e-6, 1e6] (m^2 / rad^2) before inverting, to bound the conditioning.
 // The axes with a finite positive variance are inverted together, correlations included (a real
 // covariance may be nearly singular: parking-garage's loop closures have rotation variances of 1e4
 // from correlations alone).  A block that is not positive definite (an EKF's covariance difference
