@@ -108,10 +108,10 @@ std::string Pipeline::loadGraph(const GraphFileRef& file) {
   if (!mismatch.empty()) return sidecarPath(path) + ": " + mismatch;
 
   clearGraph();
-  replaceGraph(graph);
-  for (const KeyframeRecord& k : sidecar.keyframes) keyframes_.append(k);
   is_loop_closure_.assign(graph.numConstraints(), false);
   for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;
+  replaceGraph(graph);
+  for (const KeyframeRecord& k : sidecar.keyframes) keyframes_.append(k);
   rejected_ = sidecar.rejected;
   const KeyframeRecord& newest = keyframes_.newest();
   // The sidecar does not keep odometry covariances: NaN marks the reference's as unknown, so the
