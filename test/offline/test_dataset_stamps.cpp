@@ -17,9 +17,9 @@
 
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
+
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/offline/graph_to_bag.h"
-
 #include "toro_ros/offline/offline_runner.h"
 #include "toro_ros/offline/robot_messages.h"
 
