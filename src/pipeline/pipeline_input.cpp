@@ -34,11 +34,13 @@ toro::Pose3 Pipeline::keyframeToStamp(toro::NodeId keyframe, const ros::Time& st
 }
 
 void Pipeline::countOdometryStep(const InformationResult& information) {
-  if (options_.keyframer.covariance_mode == OdometryCovarianceMode::kDefault) return;  // as configured
-  if (information.used_default)
-    ++counters_.odometry_steps_default;
-  else if (information.default_axes > 0)
-    ++counters_.odometry_steps_partly_default;
+  const bool configured_default = options_.keyframer.covariance_mode == OdometryCovarianceMode::kDefault;
+  if (!configured_default) {  // defaults that were asked for are no fallback
+    if (information.used_default)
+      ++counters_.odometry_steps_default;
+    else if (information.default_axes > 0)
+      ++counters_.odometry_steps_partly_default;
+  }
   if (information.repaired) ++counters_.odometry_steps_repaired;
   const std::string key = toString(keyframer_.effectiveMode());
   if (key == logged_odometry_rule_) return;
@@ -47,7 +49,7 @@ void Pipeline::countOdometryStep(const InformationResult& information) {
   const std::string line = std::string("odometry covariance ") + (changed ? "rule changed: " : "rule: ") +
                            keyframer_.ruleDescription();
   // Defaults on every axis, or a source that changed its convention, deserve a warning.
-  if ((information.used_default || changed) && warn_)
+  if (((information.used_default && !configured_default) || changed) && warn_)
     warn_(line);
   else if (info_)
     info_(line);
