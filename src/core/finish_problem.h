@@ -121,12 +121,12 @@ class FinishProblem {
     return total;
   }
   std::size_t numSetAside() const { return set_aside_.size(); }
-  // How many set-aside edges have a weight of at least `weight` at states().
-  std::size_t setAsideRegained(double weight) const {
+  // How many set-aside edges now weigh kRegainFactor times the threshold they were set aside by.
+  std::size_t setAsideRegained() const {
     std::size_t n = 0;
     for (const Edge& e : set_aside_) {
       const Vec r = Model::error(states_[e.i], states_[e.j], e.z);
-      n += robustWeight(robust_, r.dot(e.information * r)) >= weight ? 1 : 0;
+      n += robustWeight(robust_, r.dot(e.information * r)) >= kRegainFactor * set_aside_threshold_ ? 1 : 0;
     }
     return n;
   }
@@ -176,6 +176,9 @@ class FinishProblem {
   };
 
   void buildPattern();
+  // Moves the robust edges whose weight is below relative_weight times the median weight of the
+  // robust edges into set_aside_ (before the pattern is built).
+  void setAside(double relative_weight);
   // y += (set-aside part of H) x, from the linearisations stored by linearize().
   void addSetAsideProduct(const Eigen::VectorXd& x, Eigen::VectorXd* y) const;
   // Improves `x` towards (H_factorised + lambda I + H_set_aside) x = rhs by preconditioned CG.
@@ -196,6 +199,10 @@ class FinishProblem {
   };
   std::vector<SetAsideLinearization> set_aside_lin_;
   double last_lambda_ = 0.0;
+  double set_aside_threshold_ = 0.0;
+  // A set-aside edge counts as regained at this many times its threshold (not at the threshold
+  // itself, so an edge near it does not restart the finish over and over).
+  static constexpr double kRegainFactor = 10.0;
   std::size_t cg_iterations_ = 0;
   SparseMatrix h_;
   Eigen::VectorXd b_, diagonal_;
@@ -231,19 +238,35 @@ FinishProblem<Model>::FinishProblem(const PoseGraph& graph, LinearSolverType sol
       ++repaired_;
     e.information = Model::informationOf(information);
     e.robust = robust_.enabled() && isLoopClosure(c);
-    if (e.robust && set_aside_weight > 0.0) {
-      const Vec r = Model::error(states_[e.i], states_[e.j], e.z);
-      if (robustWeight(robust_, r.dot(e.information * r)) < set_aside_weight) {
-        set_aside_.push_back(e);
-        continue;
-      }
-    }
     edges_.push_back(e);
   }
+  if (set_aside_weight > 0.0) setAside(set_aside_weight);
   b_.setZero(free_blocks * D);
   buildPattern();
   cholesky_ = makeSparseCholesky(solver);
   cholesky_->analyzePattern(h_);
+}
+
+template <class Model>
+void FinishProblem<Model>::setAside(double relative_weight) {
+  // Relative to the median weight of the robust edges: from dead reckoning every right loop
+  // closure starts with a small weight too, and the ones far below it are the far-off wrong ones.
+  std::vector<double> weight(edges_.size(), 1.0), robust;
+  for (std::size_t k = 0; k < edges_.size(); ++k) {
+    const Edge& e = edges_[k];
+    if (!e.robust) continue;
+    const Vec r = Model::error(states_[e.i], states_[e.j], e.z);
+    weight[k] = robustWeight(robust_, r.dot(e.information * r));
+    robust.push_back(weight[k]);
+  }
+  if (robust.empty()) return;
+  const auto middle = robust.begin() + static_cast<std::ptrdiff_t>(robust.size() / 2);
+  std::nth_element(robust.begin(), middle, robust.end());
+  const double threshold = relative_weight * *middle;
+  set_aside_threshold_ = threshold;
+  std::vector<Edge> kept;
+  for (std::size_t k = 0; k < edges_.size(); ++k) (weight[k] < threshold ? set_aside_ : kept).push_back(edges_[k]);
+  edges_.swap(kept);
 }
 
 template <class Model>

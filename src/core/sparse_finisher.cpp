@@ -196,7 +196,7 @@ void LmRun<Model>::accept(std::vector<typename Model::State> trial, double new_c
   }
   if (gradient_ < options_.gradient_tolerance) report_.stop = FinishStop::kGradient;
   if (report_.stop == FinishStop::kNotRun && end_when_regained_ && problem_.numSetAside() > 0 &&
-      problem_.setAsideRegained(options_.robust_set_aside_weight) > 0) {
+      problem_.setAsideRegained() > 0) {
     report_.stop = FinishStop::kSetAsideRegained;
   }
 }

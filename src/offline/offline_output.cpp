@@ -147,6 +147,14 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
     out << "\n  },\n";
   }
   writeCurveJson(out, s.run.curve);
+  out << "  \"loop_closures_down_weighted\": " << s.status.down_weighted.size()
+      << ",\n  \"robust_width\": " << num(s.status.robust_width) << ",\n  \"robot_in_map\": [";
+  for (std::size_t i = 0; i < s.run.robot_in_map.size(); ++i) {
+    const OfflineRun::RobotInMap& r = s.run.robot_in_map[i];
+    out << (i ? "," : "") << (i % 4 ? " " : "\n    ") << "[" << num(r.stamp_sec) << ", " << num(r.position.x()) << ", "
+        << num(r.position.y()) << ", " << num(r.position.z()) << "]";
+  }
+  out << "\n  ],\n";
   writeLoopClosuresJson(out, p, atOdometryPoses(p));
   writeKeyframesJson(out, p, options);
   out << "  \"format\": \"toro_offline summary 1\"\n}\n";

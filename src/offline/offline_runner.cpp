@@ -9,6 +9,7 @@
 #include <rosbag/bag.h>
 #include <rosbag/exceptions.h>
 #include <rosbag/view.h>
+#include <nav_msgs/Odometry.h>
 
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/tree_optimizer.h"
@@ -16,6 +17,7 @@
 #include "toro_ros/offline/progress_bar.h"
 #include "toro_ros/pipeline/graph_directory.h"
 #include "toro_ros/pipeline/input_table.h"
+#include "toro_ros/pipeline/msg_conversion.h"
 #include "toro_ros/pipeline/persistence.h"
 
 namespace toro_ros {
@@ -104,15 +106,24 @@ void OfflineRunner::drainSchedule(double stamp_sec, OfflineRun* run) {
   } while (pipeline_->hasScheduledWork());
 }
 
+void OfflineRunner::traceRobot(const rosbag::MessageInstance& m, OfflineRun* run) const {
+  if (m.getDataType() != ros::message_traits::datatype<nav_msgs::Odometry>()) return;
+  const auto odometry = m.instantiate<nav_msgs::Odometry>();
+  const KeyframeIndex& keyframes = pipeline_->keyframes();
+  if (!odometry || keyframes.empty()) return;
+  // map_T_odom = (corrected newest keyframe) * (its odometry pose)^-1, as Snapshot has it.
+  const toro::Pose3 map_T_odom = pipeline_->graph().node(keyframes.size() - 1).pose * keyframes.newest().odom_T_base.inverse();
+  run->robot_in_map.push_back(
+      OfflineRun::RobotInMap{m.getTime().toSec(), map_T_odom * poseFromMsg(odometry->pose.pose).translation()});
+}
+
 void OfflineRunner::finalPasses(OfflineRun* run) {
   if (options_.final_iterations <= 0 || pipeline_->graph().numConstraints() == 0) return;
   const auto n = static_cast<unsigned>(options_.final_iterations);
   if (options_.iteration_curve) {
     // The same passes on a copy, to record chi2 after each one (Pipeline::optimize reports only
     // the end); the copy starts from the same poses and schedule, so its end matches the pipeline's.
-    toro::TreeOptimizerOptions o;
-    o.gamma = node_options_.pipeline.optimization.gamma;
-    toro::TreeOptimizer copy(o);
+    toro::TreeOptimizer copy(pipeline_->optimizerOptions());
     copy.setGraph(pipeline_->graph(), toro::InitialGuess::kFromGraph);
     for (unsigned i = 0; i < n; ++i) {
       copy.iterate();
@@ -157,6 +168,7 @@ OfflineRun OfflineRunner::run() {
     ++run.messages;
     ++run.messages_by_topic[m.getTopic()];
     drainSchedule(m.getTime().toSec(), &run);
+    traceRobot(m, &run);
     bar.update(run.bag_duration_sec > 0 ? (m.getTime() - begin).toSec() / run.bag_duration_sec : 1.0,
                run.messages);
   }

@@ -66,7 +66,9 @@ constexpr const char* kUsage =
     "  --robust-kernel dcs|cauchy|huber\n"
     "                            the weight function (default dcs: Dynamic Covariance Scaling);\n"
     "                            implies --robust\n"
-    "  --robust-width W          the kernel's width phi in chi2 units (default 1); implies --robust\n"
+    "  --robust-width W          the kernel's width phi in chi2 units (default 10; narrowed to the\n"
+    "                            residuals found: 10x the 99th percentile of the accepted loop\n"
+    "                            closures' chi2); implies --robust\n"
     "  --rejected-out FILE       write the loop closures whose final weight is below 0.5, one\n"
     "                            'from to' pair a line (needs --robust)\n"
     "  --gamma G                 rotational learning rate of iteration k is 1/(G k) (default 1 for\n"
@@ -316,9 +318,9 @@ void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measu
               graph.numNodes(), graph.numConstraints(), log.iterations,
               !o.chain_guess ? "file" : o.odometry_guess ? "odometry" : "chain");
   if (o.robust.enabled()) {
-    std::printf("  robust  kernel %s, width %g: %zu of %zu loop closures rejected (weight < %g)\n",
-                toro::robustKernelName(o.robust.kernel), o.robust.width, result.rejected_loop_closures,
-                result.loop_closures, toro::kRejectedWeight);
+    std::printf("  robust  kernel %s, width %g (given %g): %zu of %zu loop closures rejected (weight < %g)\n",
+                toro::robustKernelName(o.robust.kernel), result.robust_width > 0 ? result.robust_width : o.robust.width,
+                o.robust.width, result.rejected_loop_closures, result.loop_closures, toro::kRejectedWeight);
   }
   std::printf("  mode    %s: %zu tree iterations", toro::optimizeModeName(o.mode), result.toro_iterations);
   if (o.mode == toro::OptimizeMode::kToroThenFinish)

@@ -179,3 +179,48 @@ TEST_F(ToroOptimizeCli, BadArgumentsAndMissingFile) {
   EXPECT_EQ(r.exit_code, 0);
   EXPECT_EQ(r.out.rfind("usage: toro_optimize", 0), 0u);
 }
+
+TEST_F(ToroOptimizeCli, RobustRejectsAddedWrongLoopClosuresAndWritesThem) {
+  // smallGrid3D with two wrong loop closures appended: far-apart nodes claimed to be in one place,
+  // turned upside down, with confident covariances.
+  const toro::PoseGraph g = toro::readGraph(kSmallGrid);
+  const fs::path input = dir_ / "with_wrong.g2o";
+  {
+    std::ifstream in(kSmallGrid);
+    std::ofstream out(input);
+    out << in.rdbuf();
+    out << "EDGE_SE3:QUAT 3 120 0 0 0 1 0 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 400 0 0 400 0 400\n";
+    out << "EDGE_SE3:QUAT 7 98 0.5 0 0 0 1 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 400 0 0 400 0 400\n";
+  }
+  const fs::path rejected = dir_ / "rejected.txt";
+  const fs::path robust_out = dir_ / "robust.g2o", plain_out = dir_ / "plain.g2o";
+  Result r = run("-q --robust --rejected-out " + rejected.string() + " -o " + robust_out.string() + " " +
+                 input.string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("robust  kernel dcs"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(": 2 of 175 loop closures rejected"), std::string::npos) << r.out;
+  std::ifstream lines(rejected);
+  std::string all((std::istreambuf_iterator<char>(lines)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(all, "3 120\n7 98\n");
+  // The robust result is the clean file's optimum; the plain one is bent by the wrong ones.
+  r = run("-q -o " + plain_out.string() + " " + input.string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  toro::PoseGraph clean = g;
+  const toro::PoseGraph robust = toro::readGraph(robust_out.string());
+  toro::PoseGraph clean_result = toro::readGraph(kSmallGrid);
+  r = run("-q -o " + (dir_ / "clean.g2o").string() + " " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  clean_result = toro::readGraph((dir_ / "clean.g2o").string());
+  EXPECT_LT(toro::alignedPositionRmse(robust, clean_result), 1e-3);
+  EXPECT_GT(toro::alignedPositionRmse(toro::readGraph(plain_out.string()), clean_result), 0.05);
+  // Options that make no sense are refused.
+  r = run("--rejected-out " + rejected.string() + " " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--rejected-out needs --robust"), std::string::npos) << r.err;
+  r = run("--robust-kernel tukey " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--robust-kernel must be dcs, cauchy or huber"), std::string::npos) << r.err;
+  r = run("--robust-width -1 " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  (void)clean;
+}

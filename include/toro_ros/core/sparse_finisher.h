@@ -70,7 +70,8 @@ struct FinishOptions {
   // Robust loop closures (robust_kernel.h): the finish minimises sum rho(chi2) over loop closures
   // plus the plain chi2 of odometry, by iteratively reweighted Levenberg-Marquardt.  Off by default.
   RobustOptions robust;
-  // Robust loop closures whose weight at the start of a finish round is below this are set aside:
+  // Robust loop closures whose weight at the start of a finish round is below this times the
+  // median weight of the loop closures are set aside:
   // left out of the factorisation (a wrong loop closure between far-apart poses only adds fill-in to it,
   // measured 10x slower with 1000 on sphere2500) but kept in the objective, the gradient and, by
   // preconditioned conjugate gradients, in each step (finish_problem.h).  When one regains this

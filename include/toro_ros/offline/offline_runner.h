@@ -52,6 +52,14 @@ struct OfflineRun {
   double optimization_sec = 0.0;  // part of it spent in optimisation passes
   std::vector<CurvePoint> curve;
   OptimizeResult final_result;
+  // Where the node would have shown the robot after each odometry message: map_T_odom of the
+  // pipeline then (what its tf timer publishes) applied to that message's pose.  Compared between
+  // runs of one bag (bench/run_robust_offline.sh), it shows how far the published map ever moved.
+  struct RobotInMap {
+    double stamp_sec = 0.0;
+    toro::Vector3 position = toro::Vector3::Zero();
+  };
+  std::vector<RobotInMap> robot_in_map;
 };
 
 // Feeds one bag message to the pipeline: the table built from forEachPipelineInput.
@@ -74,6 +82,7 @@ class OfflineRunner {
 
  private:
   void drainSchedule(double stamp_sec, OfflineRun* run);
+  void traceRobot(const rosbag::MessageInstance& m, OfflineRun* run) const;
   void finalPasses(OfflineRun* run);
 
   OfflineOptions options_;

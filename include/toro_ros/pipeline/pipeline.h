@@ -185,6 +185,8 @@ class Pipeline {
   // The gate's chi2 threshold (infinity when the gate is off).
   double gateThreshold() const { return gate_threshold_; }
   const PipelineOptions& options() const { return options_; }
+  // The options of the pipeline's TORO optimiser now (gamma, robust kernel with the adapted width).
+  toro::TreeOptimizerOptions optimizerOptions() const;
   // Changes whenever what a snapshot shows changes (keyframes, constraints, poses, counters of
   // refusals, resets); not for odometry that makes no keyframe.  Publishers compare it.
   std::uint64_t revision() const { return revision_; }
@@ -216,7 +218,6 @@ class Pipeline {
   // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints
   // (it sets their kinds, so the robust weights apply to the loop closures only).
   void replaceGraph(const toro::PoseGraph& graph);
-  toro::TreeOptimizerOptions optimizerOptions() const;
   // After a full round: the robust kernel's width follows the accepted loop closures' residuals.
   void adaptRobustWidth();
   std::vector<DownWeightedLoopClosure> downWeighted() const;
