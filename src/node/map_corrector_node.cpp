@@ -58,7 +58,8 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
     options_ = std::make_shared<const NodeOptions>(resolved);
   }
   auto pipeline = std::make_unique<Pipeline>(
-      options_->pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); });
+      options_->pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); },
+      [](const std::string& i) { ROS_INFO_STREAM("map corrector: " << i); });
   // Before the worker takes the pipeline; throws, stopping the node, if load_path exists but
   // cannot be loaded, rather than start empty and autosave over it.  Its message goes to /rosout,
   // which anyone on the ROS network reads, and parameters can be set by anyone there: it quotes

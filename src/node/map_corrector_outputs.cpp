@@ -154,6 +154,12 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   status.add("robust kernel width", s->robust_width);
   // The same counts as ~get_status's refused_reasons/refused_counts, one key per reason.
   for (const auto& [reason, count] : s->counters.refused_by_reason) status.add("refused: " + reason, count);
+  status.add("odometry steps with default covariance (all / some axes)",
+             std::to_string(s->counters.odometry_steps_default) + " / " +
+                 std::to_string(s->counters.odometry_steps_partly_default));
+  status.add("loop closures with default covariance (all / some axes)",
+             std::to_string(s->counters.loop_closures_default) + " / " +
+                 std::to_string(s->counters.loop_closures_partly_default));
   status.add("autosaves", s->counters.autosaves);
   status.add("autosave failures", s->counters.autosave_failures);
   status.add("last chi2", s->chi2);

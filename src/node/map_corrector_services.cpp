@@ -112,6 +112,14 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
   res.loop_closures_readmitted = r->counters.loop_closures_readmitted;
   res.autosaves = r->counters.autosaves;
   res.autosave_failures = r->counters.autosave_failures;
+  res.odometry_covariance_rule = r->odometry_covariance_rule;
+  res.odometry_steps_default = r->counters.odometry_steps_default;
+  res.odometry_steps_partly_default = r->counters.odometry_steps_partly_default;
+  res.odometry_steps_repaired = r->counters.odometry_steps_repaired;
+  res.loop_closure_covariance_rule = r->loop_closure_covariance_rule;
+  res.loop_closures_default_covariance = r->counters.loop_closures_default;
+  res.loop_closures_partly_default_covariance = r->counters.loop_closures_partly_default;
+  res.loop_closures_repaired_covariance = r->counters.loop_closures_repaired;
   for (const RejectedLoopClosure& x : r->rejected)
     res.rejected_loop_closures.push_back(std::to_string(x.constraint.from) + " -> " +
                                          std::to_string(x.constraint.to) + " chi2 " + std::to_string(x.chi2));

@@ -108,7 +108,8 @@ void readPipeline(ParamReader& r, PipelineOptions& p) {
   r.read("keyframe_angle_rad", p.keyframer.angle_rad);
   r.read("keyframe_interval_sec", p.keyframer.interval_sec);
   r.readChoice("odometry_covariance_mode", p.keyframer.covariance_mode, odometryCovarianceModeFromString,
-               "difference, latest or default");
+               "auto, difference, motion_scaled, latest or default");
+  r.read("odometry_unmeasured_variance", p.keyframer.unmeasured_variance);
   r.read("odometry_default_translation_stddev_m", p.keyframer.default_stddev.translation_m);
   r.read("odometry_default_rotation_stddev_rad", p.keyframer.default_stddev.rotation_rad);
   r.read("loop_closure_stamp_tolerance_sec", p.matcher.stamp_tolerance_sec);
@@ -116,6 +117,7 @@ void readPipeline(ParamReader& r, PipelineOptions& p) {
   r.read("loop_closure_creates_keyframes", p.matcher.create_keyframes);
   r.read("loop_closure_default_translation_stddev_m", p.loop_closure_default_stddev.translation_m);
   r.read("loop_closure_default_rotation_stddev_rad", p.loop_closure_default_stddev.rotation_rad);
+  r.read("loop_closure_unmeasured_variance", p.loop_closure_unmeasured_variance);
   r.read("optimization_gamma", p.optimization.gamma);
   r.read("optimization_full_iterations", p.optimization.full_iterations);
   r.read("optimization_full_every_keyframes", p.optimization.full_every_keyframes);

@@ -59,7 +59,7 @@ void writeErrorJson(std::ostream& out, const char* name, const TrajectoryError& 
   out << "    " << jsonString(name) << ": {\"poses\": " << e.poses << ", \"rmse_m\": " << num(e.rmse_m)
       << ", \"mean_m\": " << num(e.mean_m) << ", \"max_m\": " << num(e.max_m)
       << ", \"final_m\": " << num(e.final_m) << ", \"mean_rotation_rad\": " << num(e.mean_rotation_rad)
-      << "}";
+      << ", \"rmse_aligned_m\": " << num(e.rmse_aligned_m) << "}";
 }
 
 void writeKeyframesJson(std::ostream& out, Pipeline& p, const OfflineOptions& options) {
@@ -122,6 +122,14 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
       << ",\n  \"loop_closures_refused\": " << k.loop_closures_refused
       << ",\n  \"loop_closures_pending\": " << s.status.pending_loop_closures
       << ",\n  \"optimization_passes\": " << k.optimization_passes
+      << ",\n  \"odometry_covariance_rule\": " << jsonString(s.status.odometry_covariance_rule)
+      << ",\n  \"odometry_steps_default\": " << k.odometry_steps_default
+      << ",\n  \"odometry_steps_partly_default\": " << k.odometry_steps_partly_default
+      << ",\n  \"odometry_steps_repaired\": " << k.odometry_steps_repaired
+      << ",\n  \"loop_closure_covariance_rule\": " << jsonString(s.status.loop_closure_covariance_rule)
+      << ",\n  \"loop_closures_default_covariance\": " << k.loop_closures_default
+      << ",\n  \"loop_closures_partly_default_covariance\": " << k.loop_closures_partly_default
+      << ",\n  \"loop_closures_repaired_covariance\": " << k.loop_closures_repaired
       << ",\n  \"final_iterations\": " << s.run.final_result.iterations
       << ",\n  \"chi2_odometry\": " << num(s.chi2_odometry)
       << ",\n  \"chi2_corrected\": " << num(s.chi2_corrected) << ",\n  \"refused_by_reason\": {";

@@ -83,10 +83,13 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
                                                       &node_options_.pipeline.persistence.autosave_path);
   if (!node_options_.load_path.empty() || !node_options_.pipeline.persistence.autosave_path.empty())
     std::cerr << paths << '\n';
-  pipeline_ = std::make_unique<Pipeline>(node_options_.pipeline, [this](const std::string& w) {
-    if (warnings_.size() < kMaxPrintedWarnings) std::cerr << "\nwarning: " << w << '\n';
-    warnings_.push_back(w);
-  });
+  pipeline_ = std::make_unique<Pipeline>(
+      node_options_.pipeline,
+      [this](const std::string& w) {
+        if (warnings_.size() < kMaxPrintedWarnings) std::cerr << "\nwarning: " << w << '\n';
+        warnings_.push_back(w);
+      },
+      [](const std::string& i) { std::cerr << "\n" << i << '\n'; });
   const std::string resumed = loadOnStart(*pipeline_, node_options_.load_path);
   if (!resumed.empty()) std::cerr << resumed << '\n';
 }

@@ -47,7 +47,9 @@ void addCovariances(const toro::PoseGraph& graph, RobotTimeline* t) {
     }
     t->step_covariance.push_back(covariance);
     const toro::Matrix6 b = blockRotation(t->odom_T_base[k + 1]);
-    t->covariance.push_back(t->covariance.back() + b * t->step_covariance.back() * b.transpose());
+    const toro::Vector3 displacement = t->odom_T_base[k + 1].translation() - t->odom_T_base[k].translation();
+    t->covariance.push_back(carriedCovariance(t->covariance.back(), displacement) +
+                            b * t->step_covariance.back() * b.transpose());
   }
 }
 
@@ -76,9 +78,13 @@ nav_msgs::Odometry odometryAtSample(const RobotTimeline& t, long sample, const G
     const long n = t.sample_of_keyframe[k + 1] - t.sample_of_keyframe[k];
     const double f = static_cast<double>(sample - t.sample_of_keyframe[k]) / static_cast<double>(n);
     if (f > 0) {
+      // The step's covariance accrues at a constant rate in the odom frame (as it is added at the
+      // keyframe, rotated by the step's end pose), so the covariance of any two samples differs
+      // by a positive semi-definite growth, also across a turn on the spot.
       pose = toro::slerp(t.odom_T_base[k], t.odom_T_base[k + 1], f);
-      const toro::Matrix6 b = blockRotation(pose);
-      covariance += f * b * t.step_covariance[k] * b.transpose();
+      const toro::Matrix6 b = blockRotation(t.odom_T_base[k + 1]);
+      covariance = carriedCovariance(covariance, pose.translation() - t.odom_T_base[k].translation()) +
+                   f * b * t.step_covariance[k] * b.transpose();
     }
     // Body-frame velocity of the current step (constant over the step).
     const toro::Pose3 step = toro::relativePose(t.odom_T_base[k], t.odom_T_base[k + 1]);

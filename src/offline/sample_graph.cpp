@@ -10,22 +10,20 @@
 namespace toro_ros {
 namespace offline {
 
-namespace {
+double RoundedRectangle::perimeter() const {
+  return 2 * (length - 2 * corner_radius) + 2 * (width - 2 * corner_radius) + 2 * M_PI * corner_radius;
+}
 
-constexpr double kLength = 16.0, kWidth = 8.0, kCornerRadius = 2.0, kHill = 1.0;
-constexpr int kPerLap = 48;
-
-// Position on the rounded rectangle at arc length s (counter-clockwise, starting mid bottom side).
-toro::Vector3 pointAt(double s) {
-  const double a = kLength - 2 * kCornerRadius, b = kWidth - 2 * kCornerRadius, q = M_PI * kCornerRadius / 2;
-  const double perimeter = 2 * a + 2 * b + 4 * q;
-  s = std::fmod(s, perimeter);
+toro::Vector3 RoundedRectangle::pointAt(double s) const {
+  const double a = length - 2 * corner_radius, b = width - 2 * corner_radius, q = M_PI * corner_radius / 2;
+  s = std::fmod(s, perimeter());
+  if (s < 0) s += perimeter();
   // Segments: bottom (right half), corner, right side, corner, top, corner, left side, corner, bottom (left
   // half).
   const double segments[] = {a / 2, q, b, q, a, q, b, q, a / 2};
   const toro::Vector3 corners[] = {
       {a / 2, b / 2, 0}, {-a / 2, b / 2, 0}, {-a / 2, -b / 2, 0}, {a / 2, -b / 2, 0}};
-  double x = 0, y = -kWidth / 2;
+  double x = 0, y = -width / 2;
   int i = 0;
   for (; i < 8 && s > segments[i]; s -= segments[i], ++i) {
   }
@@ -34,13 +32,13 @@ toro::Vector3 pointAt(double s) {
       x = s;
       break;
     case 2:
-      x = kLength / 2, y = -b / 2 + s;
+      x = length / 2, y = -b / 2 + s;
       break;
     case 4:
-      x = a / 2 - s, y = kWidth / 2;
+      x = a / 2 - s, y = width / 2;
       break;
     case 6:
-      x = -kLength / 2, y = b / 2 - s;
+      x = -length / 2, y = b / 2 - s;
       break;
     case 8:
       x = -a / 2 + s;
@@ -51,17 +49,27 @@ toro::Vector3 pointAt(double s) {
                                    : c == 1 ? corners[0]
                                    : c == 2 ? corners[1]
                                             : corners[2];
-      const double start = -M_PI / 2 + c * M_PI / 2, angle = start + s / kCornerRadius;
-      x = centre.x() + kCornerRadius * std::cos(angle), y = centre.y() + kCornerRadius * std::sin(angle);
+      const double angle = -M_PI / 2 + c * M_PI / 2 + s / corner_radius;
+      x = centre.x() + corner_radius * std::cos(angle), y = centre.y() + corner_radius * std::sin(angle);
     }
   }
-  const double z = kHill * 0.5 * (1 - std::cos(2 * M_PI * x / kLength + M_PI));  // a hill centred at x = 0
-  return {x, y, z};
+  return {x, y, 0.0};
 }
 
-double perimeter() {
-  return 2 * (kLength - 2 * kCornerRadius) + 2 * (kWidth - 2 * kCornerRadius) + 2 * M_PI * kCornerRadius;
+namespace {
+
+constexpr double kLength = 16.0, kWidth = 8.0, kCornerRadius = 2.0, kHill = 1.0;
+constexpr int kPerLap = 48;
+
+// The sample's path: the rounded rectangle over a hill centred at x = 0.
+toro::Vector3 pointAt(double s) {
+  const RoundedRectangle path{kLength, kWidth, kCornerRadius};
+  const toro::Vector3 p = path.pointAt(s);
+  const double z = kHill * 0.5 * (1 - std::cos(2 * M_PI * p.x() / kLength + M_PI));
+  return {p.x(), p.y(), z};
 }
+
+double perimeter() { return RoundedRectangle{kLength, kWidth, kCornerRadius}.perimeter(); }
 
 // A pose looking along the path (yaw and pitch from the tangent).
 toro::Pose3 poseAt(double s) {

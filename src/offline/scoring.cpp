@@ -1,6 +1,9 @@
 #include "toro_ros/offline/scoring.h"
 
 #include <algorithm>
+#include <vector>
+
+#include <Eigen/SVD>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -48,13 +51,38 @@ bool TruthTrajectory::at(const ros::Time& stamp, toro::Pose3* pose) const {
   return true;
 }
 
+namespace {
+
+// RMSE of `a` against `b` after the rotation and translation that best map a onto b (Kabsch).
+double alignedRmse(const std::vector<toro::Vector3>& a, const std::vector<toro::Vector3>& b) {
+  if (a.empty()) return 0.0;
+  toro::Vector3 ca = toro::Vector3::Zero(), cb = toro::Vector3::Zero();
+  for (std::size_t i = 0; i < a.size(); ++i) ca += a[i], cb += b[i];
+  ca /= static_cast<double>(a.size());
+  cb /= static_cast<double>(b.size());
+  toro::Matrix3 h = toro::Matrix3::Zero();
+  for (std::size_t i = 0; i < a.size(); ++i) h += (a[i] - ca) * (b[i] - cb).transpose();
+  const Eigen::JacobiSVD<toro::Matrix3> svd(h, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  toro::Matrix3 d = toro::Matrix3::Identity();
+  d(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1.0 : 1.0;
+  const toro::Matrix3 r = svd.matrixV() * d * svd.matrixU().transpose();
+  double sum2 = 0.0;
+  for (std::size_t i = 0; i < a.size(); ++i) sum2 += (r * (a[i] - ca) + cb - b[i]).squaredNorm();
+  return std::sqrt(sum2 / static_cast<double>(a.size()));
+}
+
+}  // namespace
+
 TrajectoryError trajectoryError(const std::vector<ros::Time>& stamps, const std::vector<toro::Pose3>& poses,
                                 const TruthTrajectory& truth) {
   TrajectoryError e;
   double sum2 = 0.0, sum = 0.0, rotation = 0.0;
+  std::vector<toro::Vector3> estimated, reference;
   for (std::size_t i = 0; i < stamps.size(); ++i) {
     toro::Pose3 t;
     if (!truth.at(stamps[i], &t)) continue;
+    estimated.push_back(poses[i].translation());
+    reference.push_back(t.translation());
     const double d = (poses[i].translation() - t.translation()).norm();
     sum2 += d * d;
     sum += d;
@@ -67,6 +95,7 @@ TrajectoryError trajectoryError(const std::vector<ros::Time>& stamps, const std:
   e.rmse_m = std::sqrt(sum2 / e.poses);
   e.mean_m = sum / e.poses;
   e.mean_rotation_rad = rotation / e.poses;
+  e.rmse_aligned_m = alignedRmse(estimated, reference);
   return e;
 }
 
@@ -90,7 +119,7 @@ std::string describeScore(const Score& s) {
   auto line = [&out](const char* what, const TrajectoryError& e) {
     out << what << ": position RMSE " << e.rmse_m << " m, mean " << e.mean_m << " m, max " << e.max_m
         << " m, final " << e.final_m << " m, mean rotation " << e.mean_rotation_rad * 180.0 / M_PI << " deg ("
-        << e.poses << " keyframes)\n";
+        << e.poses << " keyframes); " << e.rmse_aligned_m << " m after the best rigid alignment\n";
   };
   line("error vs truth before (odometry)", s.odometry);
   line("error vs truth after (corrected)", s.corrected);

@@ -42,6 +42,43 @@ std::optional<toro::NodeId> KeyframeIndex::nearest(const ros::Time& stamp, doubl
   return best->id;
 }
 
+std::optional<toro::NodeId> KeyframeIndex::attach(const ros::Time& stamp, double tolerance_sec) const {
+  if (records_.empty()) return std::nullopt;
+  const auto after =
+      std::lower_bound(records_.begin(), records_.end(), stamp,
+                       [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
+  if (after == records_.end()) return records_.back().id;
+  if (after == records_.begin() || after->stamp == stamp || after->after_gap)
+    return nearest(stamp, tolerance_sec);
+  const KeyframeRecord& before = *(after - 1);
+  return (stamp - before.stamp) <= (after->stamp - stamp) ? before.id : after->id;
+}
+
+std::optional<toro::Pose3> KeyframeIndex::odometryAt(const ros::Time& stamp) const {
+  if (records_.empty() || stamp < records_.front().stamp || stamp > records_.back().stamp)
+    return std::nullopt;
+  const auto after =
+      std::lower_bound(records_.begin(), records_.end(), stamp,
+                       [](const KeyframeRecord& r, const ros::Time& t) { return r.stamp < t; });
+  if (after->stamp == stamp) return after->odom_T_base;
+  if (after->after_gap) return std::nullopt;
+  const KeyframeRecord& before = *(after - 1);
+  const double fraction = (stamp - before.stamp).toSec() / (after->stamp - before.stamp).toSec();
+  return toro::slerp(before.odom_T_base, after->odom_T_base, fraction);
+}
+
+std::optional<toro::NodeId> KeyframeIndex::next(toro::NodeId id) const {
+  const KeyframeRecord* r = find(id);
+  if (r == nullptr || r == &records_.back() || (r + 1)->after_gap) return std::nullopt;
+  return (r + 1)->id;
+}
+
+std::optional<toro::NodeId> KeyframeIndex::previous(toro::NodeId id) const {
+  const KeyframeRecord* r = find(id);
+  if (r == nullptr || r == &records_.front() || r->after_gap) return std::nullopt;
+  return (r - 1)->id;
+}
+
 std::optional<double> KeyframeIndex::nearestDistance(const ros::Time& stamp, double tolerance_sec) const {
   const auto id = nearest(stamp, tolerance_sec);
   if (!id) return std::nullopt;
@@ -80,17 +117,29 @@ MatchResult LoopClosureMatcher::matchNow(const LoopClosure& msg, const KeyframeI
     r.from = msg.id_from;
     r.to = msg.id_to;
   } else {
-    const auto from = index.nearest(msg.stamp_from, options_.stamp_tolerance_sec);
-    const auto to = index.nearest(msg.stamp_to, options_.stamp_tolerance_sec);
+    auto from = index.attach(msg.stamp_from, options_.stamp_tolerance_sec);
+    auto to = index.attach(msg.stamp_to, options_.stamp_tolerance_sec);
     for (const auto& [id, stamp] : {std::pair{from, msg.stamp_from}, std::pair{to, msg.stamp_to}})
       if (!id)
-        return refused(refusal::kNoKeyframe, "no keyframe within " +
-                                                 std::to_string(options_.stamp_tolerance_sec) +
-                                                 " s of stamp " + stampString(stamp));
-    if (*from == *to)
-      return refused(refusal::kSameKeyframe, "stamps " + stampString(msg.stamp_from) + " and " +
-                                                 stampString(msg.stamp_to) + " both match keyframe " +
-                                                 std::to_string(*from));
+        return refused(refusal::kNoKeyframe,
+                       "stamp " + stampString(stamp) +
+                           " is before the first keyframe or in a gap of the "
+                           "trajectory (before a resumed map's new odometry), and no keyframe is within " +
+                           std::to_string(options_.stamp_tolerance_sec) + " s of it");
+    if (*from == *to) {
+      // Two stamps nearest to one keyframe: the later end moves on to the next keyframe (or the
+      // earlier one back to the previous), the odometry between carries the measurement there.
+      const bool to_is_later = msg.stamp_to > msg.stamp_from;
+      if (const auto n = index.next(*from)) {
+        (to_is_later ? to : from) = n;
+      } else if (const auto p = index.previous(*from)) {
+        (to_is_later ? from : to) = p;
+      } else {
+        return refused(refusal::kSameKeyframe, "stamps " + stampString(msg.stamp_from) + " and " +
+                                                   stampString(msg.stamp_to) + " both match keyframe " +
+                                                   std::to_string(*from) + ", the only one of its run");
+      }
+    }
     r.from = *from;
     r.to = *to;
   }

@@ -3,11 +3,6 @@
 #include <cmath>
 #include <cstdio>
 
-#include <Eigen/Cholesky>
-#include <Eigen/Eigenvalues>
-
-#include "toro_ros/core/pose_graph.h"
-
 namespace toro_ros {
 
 namespace {
@@ -58,21 +53,6 @@ geometry_msgs::Transform transformToMsg(const toro::Pose3& pose) {
   return t;
 }
 
-std::string DefaultStddev::validate() const {
-  if (!(std::isfinite(translation_m) && translation_m > 0)) return "default translation stddev must be > 0";
-  if (!(std::isfinite(rotation_rad) && rotation_rad > 0)) return "default rotation stddev must be > 0";
-  return "";
-}
-
-toro::Matrix6 defaultInformation(const DefaultStddev& defaults) {
-  toro::Matrix6 info = toro::Matrix6::Zero();
-  const double wt = 1.0 / (defaults.translation_m * defaults.translation_m);
-  // Per rad^2 on the angle is 4x per unit^2 on the quaternion vector (see header).
-  const double wr = 4.0 / (defaults.rotation_rad * defaults.rotation_rad);
-  info.diagonal() << wt, wt, wt, wr, wr, wr;
-  return info;
-}
-
 toro::Matrix6 covarianceMatrix(const Covariance6& covariance) {
   toro::Matrix6 m;
   for (int r = 0; r < 6; ++r)
@@ -80,33 +60,9 @@ toro::Matrix6 covarianceMatrix(const Covariance6& covariance) {
   return m;
 }
 
-InformationResult informationFromCovariance(const toro::Matrix6& cov, const DefaultStddev& defaults) {
-  InformationResult out;
-  auto fallback = [&](const std::string& why) {
-    out.information = defaultInformation(defaults);
-    out.used_default = true;
-    out.reason = why;
-    return out;
-  };
-  if (!cov.allFinite()) return fallback("covariance is not finite");
-  if (cov.cwiseAbs().maxCoeff() == 0.0) return fallback("covariance is zero");
-  const double scale = cov.cwiseAbs().maxCoeff();
-  if ((cov - cov.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale)
-    return fallback("covariance is not symmetric");
-  const toro::Matrix6 sym = 0.5 * (cov + cov.transpose());
-  Eigen::LLT<toro::Matrix6> llt(sym);
-  // A tiny smallest eigenvalue relative to the largest gives an information of ~1e12 on a direction
-  // the sensor merely did not report on; treat it as unusable rather than trust it.
-  Eigen::SelfAdjointEigenSolver<toro::Matrix6> eig(sym, Eigen::EigenvaluesOnly);
-  if (llt.info() != Eigen::Success || eig.eigenvalues().minCoeff() <= 1e-12 * scale)
-    return fallback("covariance is not positive definite");
-  const toro::Matrix6 per_angle = llt.solve(toro::Matrix6::Identity());
-  out.information = toro::angleToQuaternionUnits(0.5 * (per_angle + per_angle.transpose()));
-  return out;
-}
-
-InformationResult informationFromCovariance(const Covariance6& covariance, const DefaultStddev& defaults) {
-  return informationFromCovariance(covarianceMatrix(covariance), defaults);
+InformationResult informationFromCovariance(const Covariance6& covariance, const DefaultStddev& defaults,
+                                            double unmeasured_variance) {
+  return informationFromCovariance(covarianceMatrix(covariance), defaults, unmeasured_variance);
 }
 
 std::string validateOdometry(const nav_msgs::Odometry& msg) {

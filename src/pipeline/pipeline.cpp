@@ -92,9 +92,10 @@ std::string PipelineOptions::validate() const {
   return persistence.validate();
 }
 
-Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn)
+Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn, InfoSink info)
     : options_(options),
       warn_(std::move(warn)),
+      info_(std::move(info)),
       optimizer_(),
       keyframer_(options.keyframer),
       matcher_(options.matcher),
@@ -162,6 +163,7 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
   }
   newest_odometry_ = stamp;
   last_odometry_ = sample;
+  keyframer_.observe(sample);
   odometry_history_.add(stamp, last_odometry_->odom_T_base);
   if (keyframer_.isKeyframe(*last_odometry_) ||
       (options_.matcher.create_keyframes && matcher_.wantsKeyframeAt(stamp, keyframes_)))
@@ -174,9 +176,7 @@ void Pipeline::addKeyframe(const OdometrySample& sample) {
   // After a load the reference keyframe's covariance is unknown (NaN): defaults, not a refusal.
   const bool reference_known = !keyframer_.last() || keyframer_.last()->covariance.allFinite();
   const std::optional<OdometryStep> step = keyframer_.accept(sample);
-  if (step && step->information.used_default && reference_known &&
-      options_.keyframer.covariance_mode != OdometryCovarianceMode::kDefault)
-    ++counters_.refused_by_reason["odometry: covariance unusable, default used"];
+  if (step && reference_known) countOdometryStep(step->information);
   appendKeyframe(sample, step);
 }
 
@@ -189,7 +189,8 @@ void Pipeline::appendKeyframe(const OdometrySample& sample, const std::optional<
   const toro::NodeId previous = keyframes_.empty() ? -1 : keyframes_.newest().id;
   optimizer_.addNode(id, pose);
   ++revision_;
-  keyframes_.append(KeyframeRecord{id, sample.stamp, sample.odom_T_base});
+  keyframes_.append(KeyframeRecord{id, sample.stamp, sample.odom_T_base, next_keyframe_after_gap_});
+  next_keyframe_after_gap_ = false;
   if (last_full_stamp_.isZero()) last_full_stamp_ = sample.stamp;
   ++keyframes_since_full_;
   if (!step) return;
@@ -230,13 +231,6 @@ void Pipeline::handleLoopClosure(const LoopClosure& msg) {
     refuseLoopClosure(r, msg);
 }
 
-toro::Pose3 Pipeline::keyframeToStamp(toro::NodeId keyframe, const ros::Time& stamp) const {
-  const KeyframeRecord* k = keyframes_.find(keyframe);
-  const std::optional<toro::Pose3> odom_T_stamp = odometry_history_.at(stamp);
-  if (k == nullptr || !odom_T_stamp) return toro::Pose3();
-  return toro::relativePose(k->odom_T_base, *odom_T_stamp);
-}
-
 void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match) {
   // The same message twice (a bridge or recogniser that resends) would count one measurement
   // twice; two different measurements of the same pair are independent and both kept.
@@ -247,8 +241,8 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
     refuseLoopClosure(refused, msg);
     return;
   }
-  const InformationResult info =
-      informationFromCovariance(msg.covariance, options_.loop_closure_default_stddev);
+  const InformationResult info = informationFromCovariance(
+      msg.covariance, options_.loop_closure_default_stddev, options_.loop_closure_unmeasured_variance);
   toro::Pose3 measurement = poseFromMsg(msg.from_T_to);
   if (msg.id_from < 0 || msg.id_to < 0) {
     // The message measures stamp_from_T_stamp_to; the constraint joins the matched keyframes.
@@ -267,7 +261,7 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
     refuseLoopClosure(refused, msg);
     return;
   }
-  if (info.used_default) ++counters_.refused_by_reason["loop closure: covariance unusable, default used"];
+  countLoopClosureInformation(info);
   is_loop_closure_.push_back(true);
   ++revision_;
   ++counters_.loop_closures_applied;
@@ -476,6 +470,7 @@ void Pipeline::clearGraph() {
   robust_width_ = options_.robust.width;
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
   keyframer_.reset();
+  logged_odometry_rule_.clear();
   last_odometry_.reset();
   odometry_history_.clear();
   keyframes_.clear();
@@ -491,6 +486,7 @@ void Pipeline::clearGraph() {
   last_chi2_ = kNaN;
   applied_messages_.clear();
   resume_after_.reset();
+  next_keyframe_after_gap_ = false;
   loaded_until_ = ros::Time();
   ++counters_.resets;
   ++epoch_;
@@ -547,6 +543,8 @@ PipelineStatus Pipeline::status() const {
   s.paused = paused_;
   s.counters = counters_;
   s.rejected = rejected_;
+  s.odometry_covariance_rule = keyframer_.ruleDescription();
+  s.loop_closure_covariance_rule = loop_closure_rule_;
   s.down_weighted = downWeighted();
   s.robust_width = options_.robust.enabled() ? robust_width_ : 0.0;
   return s;

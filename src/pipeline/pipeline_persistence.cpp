@@ -123,6 +123,10 @@ std::string Pipeline::loadGraph(const GraphFileRef& file) {
   last_full_stamp_ = newest.stamp;
   next_id_ = newest.id + 1;
   resume_after_ = loaded_until_ = newest.stamp;
+  // Whatever the resume link, the odometry between the saved newest keyframe and the first new one
+  // was not seen (the node was down; with last_pose it is even in another frame): no stamp in
+  // that gap is interpolated.
+  next_keyframe_after_gap_ = true;
   // What was just loaded is on disk already; the next autosave waits for a change.
   autosaved_revision_ = revision_;
   last_autosave_stamp_ = newest.stamp;

@@ -60,7 +60,8 @@ void checkInformation(const toro_ros::LoopClosure& msg) {
     fail("information is not symmetric");
   Eigen::SelfAdjointEigenSolver<toro::Matrix6> eig(r.information, Eigen::EigenvaluesOnly);
   if (!(eig.eigenvalues().minCoeff() > 0)) fail("information is not positive definite");
-  if (r.used_default == r.reason.empty()) fail("used_default and reason disagree");
+  if ((r.default_axes > 0 || r.repaired) == r.reason.empty()) fail("defaults/repair and reason disagree");
+  if (r.used_default != (r.default_axes == 6)) fail("used_default and default_axes disagree");
 }
 
 void checkAccounting(const toro_ros::Pipeline& p) {

@@ -98,7 +98,11 @@ TEST(BadInput, UnusableOdometryCovarianceFallsBackToTheDefaultAndIsCounted) {
   // The messages themselves are used (their pose is fine); the keyframes are 0.5 m apart, so
   // every odometry constraint made gets the default information.
   EXPECT_EQ(f.pipeline.status().counters.odometry_refused, 0u);
-  EXPECT_EQ(f.count("odometry: covariance unusable, default used"), f.pipeline.status().keyframes - 1);
+  const PipelineCounters c = f.pipeline.status().counters;
+  EXPECT_EQ(c.odometry_steps_default, f.pipeline.status().keyframes - 1);
+  EXPECT_EQ(c.odometry_steps_partly_default, 0u);
+  EXPECT_TRUE(c.refused_by_reason.empty());  // nothing was refused
+  EXPECT_TRUE(f.warned("odometry covariance rule", "step covariance"));
 }
 
 TEST(BadInput, RepeatedOdometryStampIsRefusedAsOutOfOrder) {
@@ -110,25 +114,35 @@ TEST(BadInput, RepeatedOdometryStampIsRefusedAsOutOfOrder) {
   EXPECT_TRUE(f.warned("odometry at 100.900000000", "not after the newest"));
 }
 
-TEST(BadInput, LoopClosureCovariancesAreRepairedWithTheDefaultsAndCounted) {
-  // Zero, non-finite, asymmetric and indefinite covariances: the constraint is kept (its pose is
-  // fine) with the configured default information, and the repair is counted.
+TEST(BadInput, LoopClosureCovariancesAreReadPerAxisAndCounted) {
+  // Zero, infinite, asymmetric and negative entries: the constraint is kept (its pose is fine), each
+  // axis read on its own (covariance_rules.h), and what took defaults or a repair is counted.
   Fixture f;
   f.drive(40);
   std::vector<LoopClosure> bad(4, loopClosure(0, 30));
   bad[0].covariance.fill(0.0);
-  bad[1].covariance[0] = kInf;
-  bad[2].covariance[1] = 1e-3;   // (0,1) without (1,0)
+  bad[1].covariance[0] = kInf;    // x not measured at all
+  bad[2].covariance[1] = 1e-4;    // (0,1) without (1,0)
   bad[3].covariance[35] = -1e-4;  // negative variance of yaw
   for (const LoopClosure& lc : bad) f.pipeline.handleLoopClosure(lc);
-  const PipelineCounters c = f.pipeline.status().counters;
+  const PipelineStatus s = f.pipeline.status();
+  const PipelineCounters& c = s.counters;
   EXPECT_EQ(c.loop_closures_applied, 4u);
   EXPECT_EQ(c.loop_closures_refused, 0u);
-  EXPECT_EQ(f.count("loop closure: covariance unusable, default used"), 4u);
-  const toro::Matrix6 expected = defaultInformation(options().loop_closure_default_stddev);
+  EXPECT_TRUE(c.refused_by_reason.empty());
+  EXPECT_EQ(c.loop_closures_default, 1u);          // all zero
+  EXPECT_EQ(c.loop_closures_partly_default, 1u);   // yaw
+  EXPECT_EQ(c.loop_closures_repaired, 1u);         // the asymmetric one, averaged
+  const toro::Matrix6 defaults = defaultInformation(options().loop_closure_default_stddev);
   const toro::PoseGraph& g = f.pipeline.graph();
-  for (std::size_t i = g.numConstraints() - 4; i < g.numConstraints(); ++i)
-    EXPECT_TRUE(g.constraints()[i].information.isApprox(expected)) << "constraint " << i;
+  const std::size_t first = g.numConstraints() - 4;
+  EXPECT_TRUE(g.constraints()[first].information.isApprox(defaults));
+  EXPECT_LE(g.constraints()[first + 1].information(0, 0), 1e-6);  // unmeasured: ~0, not the default
+  EXPECT_NEAR(g.constraints()[first + 1].information(1, 1), 1 / (0.02 * 0.02), 1e-6);
+  EXPECT_NEAR(g.constraints()[first + 3].information(5, 5), defaults(5, 5), 1e-9);
+  EXPECT_NEAR(g.constraints()[first + 3].information(4, 4), 4 / (0.02 * 0.02), 1e-6);
+  EXPECT_NE(s.loop_closure_covariance_rule.find("unknown"), std::string::npos) << s.loop_closure_covariance_rule;
+  EXPECT_TRUE(f.warned("loop closure covariance", "unknown"));
 }
 
 TEST(BadInput, NonFiniteLoopClosurePoseIsRefused) {
@@ -142,7 +156,7 @@ TEST(BadInput, NonFiniteLoopClosurePoseIsRefused) {
   EXPECT_TRUE(f.warned("loop closure", "from_T_to"));
 }
 
-TEST(BadInput, SelfLoopsAreRefused) {
+TEST(BadInput, SelfLoopsAreRefusedTwoStampsNearOneKeyframeSpanTwo) {
   Fixture f;
   f.drive(40);
   f.pipeline.handleLoopClosure(byIds(3, 3));                      // one id twice
@@ -152,8 +166,12 @@ TEST(BadInput, SelfLoopsAreRefused) {
   near.stamp_to = near.stamp_from + ros::Duration(0.05);
   f.pipeline.handleLoopClosure(near);
   EXPECT_EQ(f.count("loop closure: invalid message"), 2u);
-  EXPECT_EQ(f.count("loop closure: both ends on one keyframe"), 1u);
-  EXPECT_EQ(f.pipeline.status().counters.loop_closures_applied, 0u);
+  // The later stamp moves on to the next keyframe, the odometry between carrying the measurement.
+  EXPECT_EQ(f.count("loop closure: both ends on one keyframe"), 0u);
+  ASSERT_EQ(f.pipeline.status().counters.loop_closures_applied, 1u);
+  const toro::Constraint& c = f.pipeline.graph().constraints().back();
+  EXPECT_EQ(c.from, f.pipeline.keyframes().records().at(3).id);
+  EXPECT_EQ(c.to, f.pipeline.keyframes().records().at(4).id);
 }
 
 TEST(BadInput, FarPastStampIsRefusedFarFutureWaitsAndIsBounded) {

@@ -74,9 +74,18 @@ TEST(LoopClosureMatcher, IdsAreCheckedAndPreferred) {
   EXPECT_EQ(m.submit(lc, k, ros::Time(12)).reason, refusal::kUnknownId);
 }
 
-TEST(LoopClosureMatcher, BothEndsOnOneKeyframeIsRefused) {
+TEST(LoopClosureMatcher, BothEndsNearestToOneKeyframeSpanItAndTheNext) {
   LoopClosureMatcher m(options());
-  EXPECT_EQ(m.submit(byStamp(10.0, 10.1), index({10, 11}), ros::Time(11)).reason, refusal::kSameKeyframe);
+  // The later stamp moves on to the next keyframe; at the newest, the earlier one moves back.
+  const MatchResult r = m.submit(byStamp(10.0, 10.1), index({10, 11}), ros::Time(11));
+  EXPECT_EQ(r.state, MatchResult::State::kMatched);
+  EXPECT_EQ(r.from, 0);
+  EXPECT_EQ(r.to, 1);
+  const MatchResult back = m.submit(byStamp(11.1, 11.0), index({10, 11}), ros::Time(12));
+  EXPECT_EQ(back.from, 1);
+  EXPECT_EQ(back.to, 0);
+  // A single keyframe cannot hold both ends.
+  EXPECT_EQ(m.submit(byStamp(10.0, 10.1), index({10}), ros::Time(11)).reason, refusal::kSameKeyframe);
 }
 
 TEST(LoopClosureMatcher, FutureStampWaitsUntilOdometryReachesIt) {
@@ -97,14 +106,15 @@ TEST(LoopClosureMatcher, FutureStampWaitsUntilOdometryReachesIt) {
   EXPECT_EQ(m.pending(), 0u);
 }
 
-TEST(LoopClosureMatcher, FutureStampWithNoKeyframeIsRefusedOnceOdometryPassesIt) {
+TEST(LoopClosureMatcher, FutureStampWithNoNearKeyframeAttachesToTheNewestOnceOdometryPassesIt) {
   LoopClosureMatcher m(options());
   const KeyframeIndex k = index({10, 11});
   m.submit(byStamp(10, 13), k, ros::Time(11.5));
   EXPECT_TRUE(m.release(k, ros::Time(13.1)).empty());  // a keyframe could still come within 0.2 s
   const auto released = m.release(k, ros::Time(13.3));
   ASSERT_EQ(released.size(), 1u);
-  EXPECT_EQ(released[0].second.reason, refusal::kNoKeyframe);
+  EXPECT_EQ(released[0].second.state, MatchResult::State::kMatched);
+  EXPECT_EQ(released[0].second.to, 1);  // the odometry from 11 to 13 moves it there
 }
 
 TEST(LoopClosureMatcher, PendingListIsBounded) {

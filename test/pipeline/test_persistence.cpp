@@ -3,6 +3,7 @@
 // test/offline/test_resume_after_kill.cpp.
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -118,9 +119,10 @@ TEST(Persistence, AutosaveFailureIsCountedAndWarnedAndTheRunGoesOn) {
   EXPECT_GE(p.status().counters.autosave_failures, 5u);  // every 2 s of 20 s (the graph always grew)
   EXPECT_EQ(p.status().counters.autosaves, 0u);
   EXPECT_GT(p.keyframes().size(), 20u);
-  ASSERT_FALSE(warnings.empty());
-  EXPECT_NE(warnings.front().find("autosave failed"), std::string::npos) << warnings.front();
-  EXPECT_NE(warnings.front().find(path), std::string::npos) << warnings.front();
+  const auto failed = std::find_if(warnings.begin(), warnings.end(),
+                                   [](const std::string& w) { return w.find("autosave failed") != std::string::npos; });
+  ASSERT_NE(failed, warnings.end());
+  EXPECT_NE(failed->find(path), std::string::npos) << *failed;
   EXPECT_NE(p.autosave(), "");
 }
 
@@ -281,7 +283,7 @@ TEST(Persistence, ContinueStepsFromTheSavedOdometryWithDefaultInformation) {
   EXPECT_NEAR((c.measurement.translation() - expected.translation()).norm(), 0.0, 1e-12);
   // The saved covariance is not kept: defaults (1 / 0.05^2), not counted as an unusable covariance.
   EXPECT_NEAR(c.information(0, 0), 1.0 / (0.05 * 0.05), 1e-6);
-  EXPECT_EQ(count(q, "odometry: covariance unusable, default used"), 0u);
+  EXPECT_EQ(q.status().counters.odometry_steps_default, 0u);
 }
 
 TEST(Persistence, OdometryInAnotherFrameIsRefusedAndRepeatsAreLoggedSparsely) {

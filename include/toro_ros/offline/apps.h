@@ -9,6 +9,7 @@ int runGraphToBag(int argc, char** argv);
 int runToroOffline(int argc, char** argv);
 int runToroScore(int argc, char** argv);
 int runMakeSampleGraph(int argc, char** argv);
+int runMakePlanarRobot(int argc, char** argv);
 
 }  // namespace offline
 }  // namespace toro_ros

@@ -7,7 +7,8 @@
 // a robot would report is the chain of those steps composed from the identity (so it drifts as the dataset's
 // odometry does), interpolated between keyframes (slerp / lerp).  The pose covariance grows along the chain
 // (each step's covariance, from its information, rotated into the odom frame and added), so the
-// node's default "difference" odometry covariance mode recovers each step's information exactly.
+// node (odometry_covariance_mode auto sees a growing covariance and takes the difference) recovers
+// each step's information exactly.
 // Every other constraint becomes a LoopClosure naming its two poses by their stamps.
 //
 // Time.  Keyframe k is reached at start_sec + (sum of earlier step durations); a step lasts its

@@ -13,14 +13,17 @@ namespace offline {
 // The same graph with its dense indices in increasing id order (constraints keep their order).
 toro::PoseGraph sortedById(const toro::PoseGraph& graph);
 
-// Fills t->step_covariance and t->covariance: each step's covariance (from its information) rotated
-// into the odom frame by the step's end pose and summed along the chain, so that (newer - older)
-// rotated back into the newer body frame is exactly the step's covariance (the keyframer's
-// "difference" mode recovers the step's information).
+// Fills t->step_covariance and t->covariance as an EKF's prediction grows a pose covariance: the
+// previous covariance carried to the new pose (carriedCovariance), plus the step's covariance (from
+// its information) rotated into the odom frame by the step's end pose (covariance_rules.h).  So the keyframer's
+// "difference" (newer - older carried, rotated back into the newer body frame) is exactly the
+// step's covariance and recovers the step's information.
 void addCovariances(const toro::PoseGraph& graph, RobotTimeline* t);
 
+
 // Odometry sample `sample` (0 .. last keyframe's sample): the pose interpolated between the two
-// keyframes around it, the covariance grown along the chain, the twist of the current step.
+// keyframes around it, the covariance grown along the chain (carried, plus the current step's
+// covariance in proportion), the twist of the current step.
 nav_msgs::Odometry odometryAtSample(const RobotTimeline& t, long sample, const GraphToBagOptions& o);
 tf2_msgs::TFMessage tfFromOdometry(const nav_msgs::Odometry& odom);
 

@@ -12,6 +12,17 @@
 namespace toro_ros {
 namespace offline {
 
+// A rectangle with rounded corners in the plane z = 0, centred at the origin, driven
+// counter-clockwise from the middle of its bottom side (arc length s from there, any s; one lap is
+// perimeter()).  The path of the bundled sample and of the planar robot (planar_robot.h).
+struct RoundedRectangle {
+  double length = 16.0;  // along x, m
+  double width = 8.0;    // along y, m
+  double corner_radius = 2.0;
+  double perimeter() const;
+  toro::Vector3 pointAt(double s) const;
+};
+
 struct SampleOptions {
   int laps = 3;
   int closure_every = 3;  // keyframes between loop closures

@@ -2,7 +2,8 @@
 // is known per graph node with a stamp, so any keyframe (whichever stamps the node chose) is
 // compared with the truth interpolated at its stamp (slerp between the two nearest truth poses).
 // All poses are in the odom frame's origin (the first pose is the identity in truth, odometry and
-// the corrected map alike), so no alignment is applied: a gauge drift counts as error.
+// the corrected map alike), so the main figures apply no alignment: a gauge drift counts as error.
+// rmse_aligned_m is the same after the best rigid alignment.
 #pragma once
 
 #include <string>
@@ -21,6 +22,10 @@ struct TrajectoryError {
   double max_m = 0.0;
   double mean_rotation_rad = 0.0;
   double final_m = 0.0;  // position error of the newest scored keyframe
+  // Position RMSE after the rigid motion that best aligns the poses with the truth (Kabsch, no
+  // scale; the "absolute trajectory error" of SLAM benchmarks): the shape of the map without the
+  // rotation about the first pose that no loop closure can observe.
+  double rmse_aligned_m = 0.0;
 };
 
 struct Score {

@@ -12,22 +12,39 @@
 
 namespace toro_ros {
 
-// How the information of an odometry constraint is derived from the two odometry covariances.
+// How the information of an odometry constraint is derived from the odometry covariances.  Every
+// mode reads the covariance axis by axis (covariance_rules.h): huge variances are unmeasured axes
+// (information ~0), zero or missing ones unknown (that axis takes the default).
 enum class OdometryCovarianceMode {
-  kDifference,  // covariance(newer) - covariance(older): dead reckoning whose covariance grows
-  kLatest,      // covariance(newer) as the covariance of the step: sources with a per-step covariance
-  kDefault,     // always the configured defaults
+  // Per source, from what the messages show: kDifference once the covariance has changed between
+  // two messages (an EKF or dead reckoning whose covariance grows), kMotionScaled while it is the
+  // same in every message (diff_drive_controller publishes its configured pose_covariance_diagonal).
+  kAuto,
+  kDifference,    // covariance(newer) - covariance(older) carried to the newer pose, where it grew
+  kMotionScaled,  // covariance(newer) x the step's motion (m + rad): a per-metre covariance
+  kLatest,        // covariance(newer) as the covariance of the step (a per-step covariance)
+  kDefault,       // always the configured defaults
 };
-// "difference" | "latest" | "default"; nullopt for anything else.
+// "auto" | "difference" | "motion_scaled" | "latest" | "default"; nullopt for anything else.
 std::optional<OdometryCovarianceMode> odometryCovarianceModeFromString(const std::string& s);
 std::string toString(OdometryCovarianceMode mode);
+
+// What kAuto has seen of the source: nothing yet, the same covariance in every message, or one
+// that changed (it stays kGrowing until a reset).
+enum class OdometryCovarianceConvention { kUndetermined, kConstant, kGrowing };
+
+// kMotionScaled: the step's covariance is the message's times this much motion: metres travelled
+// plus radians turned (odometry error grows with motion, not time: a stopped wheel does not slip),
+// at least kMinMotionScale, so a keyframe made while standing still is trusted, not infinitely.
+constexpr double kMinMotionScale = 0.01;
 
 struct KeyframerOptions {
   double distance_m = 0.5;     // new keyframe when moved farther than this since the last one
   double angle_rad = 0.35;     // ... or turned more than this
   double interval_sec = 10.0;  // ... or this much time passed (0 = never by time)
-  OdometryCovarianceMode covariance_mode = OdometryCovarianceMode::kDifference;
-  DefaultStddev default_stddev;  // when the covariance is zero or unusable
+  OdometryCovarianceMode covariance_mode = OdometryCovarianceMode::kAuto;
+  DefaultStddev default_stddev;  // on axes whose covariance is unknown (zero, not finite)
+  double unmeasured_variance = kDefaultUnmeasuredVariance;  // m^2 / rad^2 at or above: unmeasured
   std::string validate() const;
 };
 
@@ -47,22 +64,36 @@ class Keyframer {
  public:
   explicit Keyframer(const KeyframerOptions& options) : options_(options) {}
 
+  // Every odometry message in stamp order, keyframe or not, before isKeyframe/accept: kAuto watches
+  // whether the covariance changes from one message to the next.
+  void observe(const OdometrySample& sample);
   // True if `sample` should become a keyframe given the last keyframe (always true for the first).
   bool isKeyframe(const OdometrySample& sample) const;
   // Records `sample` as the newest keyframe; returns the step from the previous keyframe
   // (nullopt for the first keyframe).
   std::optional<OdometryStep> accept(const OdometrySample& sample);
-  // Makes `sample` the reference without producing a step (after loading a graph).
-  void setLast(const OdometrySample& sample) { last_ = sample; }
+  // Makes `sample` the reference without producing a step (after loading a graph); what kAuto saw
+  // of the source is forgotten (the new run's odometry may come from another source).
+  void setLast(const OdometrySample& sample);
 
   const std::optional<OdometrySample>& last() const { return last_; }
-  void reset() { last_.reset(); }
+  void reset();
+
+  OdometryCovarianceConvention convention() const { return convention_; }
+  // The mode that makes the next step (kAuto resolved by the convention; kDefault while kAuto has
+  // seen too little, i.e. right after a load).
+  OdometryCovarianceMode effectiveMode() const;
+  // One line for the log and ~get_status: the rule in use and how the last step read the axes.
+  std::string ruleDescription() const;
 
  private:
   InformationResult stepInformation(const OdometrySample& older, const OdometrySample& newer) const;
 
   KeyframerOptions options_;
   std::optional<OdometrySample> last_;
+  std::optional<toro::Matrix6> previous_covariance_;  // of the previous message (kAuto)
+  OdometryCovarianceConvention convention_ = OdometryCovarianceConvention::kUndetermined;
+  std::optional<AxisReadings> last_step_axes_;
 };
 
 }  // namespace toro_ros

@@ -1,5 +1,8 @@
-// Which keyframes a loop closure names: by id, or by stamps matched to the keyframe nearest in time
-// within a tolerance.  Stamps later than the newest odometry wait in a bounded pending list.
+// Which keyframes a loop closure names: by id, or by stamps.  A stamp inside the trajectory attaches
+// to the keyframe nearest in time, however far (the pipeline moves the measurement onto it with the
+// odometry between the two); the tolerance only guards stamps before the first keyframe and in a
+// gap of the trajectory (KeyframeRecord::after_gap).  Stamps later than the newest odometry wait in a bounded
+// pending list.
 #pragma once
 
 #include <cstddef>
@@ -21,6 +24,10 @@ struct KeyframeRecord {
   toro::NodeId id = 0;
   ros::Time stamp;
   toro::Pose3 odom_T_base;  // the odometry pose it was made from
+  // The odometry between the keyframe before and this one was not seen (the first keyframe after a
+  // loaded map: the node was down, or the odometry restarted with resume_link last_pose): nothing
+  // is interpolated between the two.
+  bool after_gap = false;
 };
 
 // Keyframes sorted by stamp and by id (both increase together).
@@ -37,6 +44,16 @@ class KeyframeIndex {
   std::optional<toro::NodeId> nearest(const ros::Time& stamp, double tolerance_sec) const;
   // |stamp - nearest keyframe| if one is within tolerance.
   std::optional<double> nearestDistance(const ros::Time& stamp, double tolerance_sec) const;
+  // The keyframe a loop-closure stamp attaches to: between two keyframes with the odometry between
+  // them seen, the nearer in time (ties: the older); after the newest, the newest; before the first
+  // or in a gap (after_gap), the nearest within tolerance only.  nullopt otherwise.
+  std::optional<toro::NodeId> attach(const ros::Time& stamp, double tolerance_sec) const;
+  // odom_T_base at `stamp` interpolated (slerp) between the keyframes around it; nullopt before the
+  // first, after the newest or in a gap.
+  std::optional<toro::Pose3> odometryAt(const ros::Time& stamp) const;
+  // The keyframe after / before `id` in stamp order, not across a gap, or nullopt.
+  std::optional<toro::NodeId> next(toro::NodeId id) const;
+  std::optional<toro::NodeId> previous(toro::NodeId id) const;
   // The record of an id, or nullptr.
   const KeyframeRecord* find(toro::NodeId id) const;
 
@@ -45,8 +62,10 @@ class KeyframeIndex {
 };
 
 struct LoopClosureMatchOptions {
-  double stamp_tolerance_sec = 0.25;  // nearest keyframe must be within this of the stamp
-  std::size_t max_pending = 200;      // loop closures waiting for odometry to reach their stamps
+  // Stamps before the first keyframe (or in a gap of the trajectory) attach to the nearest
+  // keyframe only within this; a pending stamp waits at most this long for a nearer keyframe.
+  double stamp_tolerance_sec = 0.25;
+  std::size_t max_pending = 200;  // loop closures waiting for odometry to reach their stamps
   // Make a keyframe from the odometry sample at (or just after) a loop closure's stamp when no
   // keyframe is nearer.  Exact and quick, but keyframing then depends on when a loop closure
   // arrives relative to the odometry, so a live run and an offline replay of the same bag can

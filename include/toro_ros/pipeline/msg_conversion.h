@@ -11,6 +11,7 @@
 
 #include "toro_ros/LoopClosure.h"
 #include "toro_ros/core/pose3.h"
+#include "toro_ros/pipeline/covariance_rules.h"
 
 namespace toro_ros {
 
@@ -20,30 +21,10 @@ toro::Pose3 poseFromMsg(const geometry_msgs::Pose& msg);
 geometry_msgs::Pose poseToMsg(const toro::Pose3& pose);
 geometry_msgs::Transform transformToMsg(const toro::Pose3& pose);
 
-// Standard deviations used when a message's covariance is unusable.
-struct DefaultStddev {
-  double translation_m = 0.05;
-  double rotation_rad = 0.02;
-  std::string validate() const;  // empty when both are finite and > 0
-};
-
-// Result of turning a covariance into the core's information matrix.
-struct InformationResult {
-  toro::Matrix6 information;  // g2o order, rotation block in quaternion-vector units
-  bool used_default = false;
-  std::string reason;  // why the default was used (empty otherwise)
-};
-
-// Diagonal information of the defaults, in the core's units.
-toro::Matrix6 defaultInformation(const DefaultStddev& defaults);
-
-// Covariance in geometry_msgs order and units (x y z, rotation about X Y Z in rad, row-major) ->
-// the core's information.  The core's rotational error is the quaternion vector part, about half
-// the rotation vector, so with J = diag(1,1,1,1/2,1/2,1/2): Omega_q = J^-T Sigma^-1 J^-1, i.e. the
-// rotation block times 4 and the translation/rotation cross blocks times 2.  A covariance that is
-// all zero, not finite, asymmetric or not positive definite yields the defaults and the reason.
-InformationResult informationFromCovariance(const Covariance6& covariance, const DefaultStddev& defaults);
-InformationResult informationFromCovariance(const toro::Matrix6& covariance, const DefaultStddev& defaults);
+// covariance_rules.h: informationFromCovariance for a toro::Matrix6; this overload reads the
+// message layout (row-major, geometry_msgs order).
+InformationResult informationFromCovariance(const Covariance6& covariance, const DefaultStddev& defaults,
+                                            double unmeasured_variance = kDefaultUnmeasuredVariance);
 
 toro::Matrix6 covarianceMatrix(const Covariance6& covariance);
 

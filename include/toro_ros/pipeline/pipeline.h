@@ -69,12 +69,14 @@ struct PipelineOptions {
   KeyframerOptions keyframer;
   LoopClosureMatchOptions matcher;
   DefaultStddev loop_closure_default_stddev{0.1, 0.05};
+  // Loop-closure variances at or above this (m^2 / rad^2) mark unmeasured axes (covariance_rules.h).
+  double loop_closure_unmeasured_variance = kDefaultUnmeasuredVariance;
   OptimizationOptions optimization;
   // Odometry more than this older than the newest resets the graph (a bag restarted); smaller
   // steps back are refused as out of order.
   double time_jump_reset_sec = 1.0;
-  // Odometry kept to move a loop closure from the stamps it names onto its keyframes (the motion
-  // between a stamp and its keyframe); stamps older than this are attached uncorrected.
+  // Odometry kept at full rate to move a loop closure from the stamps it names onto its keyframes
+  // (the motion between a stamp and its keyframe); older messages are thinned (odometry_history.h).
   double odometry_history_sec = 60.0;
   // Loop-closure gate (see pipeline_gate.cpp): after a new loop closure's affected pass, its g2o
   // chi2 must not exceed the chi-square quantile with 6 degrees of freedom at this confidence, else
@@ -118,6 +120,10 @@ struct PipelineStatus {
   bool paused = false;
   PipelineCounters counters;
   std::vector<RejectedLoopClosure> rejected;
+  // How covariances are read: the odometry rule in use (Keyframer::ruleDescription) and the axes
+  // of the newest applied loop closure's covariance ("" before the first).
+  std::string odometry_covariance_rule;
+  std::string loop_closure_covariance_rule;
   // Loop closures whose robust weight is now below toro::kRejectedWeight (they stay in the graph
   // and regain weight when the map comes to agree with them), and the kernel width in use.
   std::vector<DownWeightedLoopClosure> down_weighted;
@@ -127,9 +133,11 @@ struct PipelineStatus {
 class Pipeline {
  public:
   using WarningSink = std::function<void(const std::string&)>;
+  using InfoSink = std::function<void(const std::string&)>;
 
-  // Throws std::invalid_argument if options.validate() complains.
-  explicit Pipeline(const PipelineOptions& options, WarningSink warn = nullptr);
+  // Throws std::invalid_argument if options.validate() complains.  `info` hears what is worth one
+  // line in the log but is no problem (which covariance rule is in use).
+  explicit Pipeline(const PipelineOptions& options, WarningSink warn = nullptr, InfoSink info = nullptr);
 
   // Grows the graph (no optimisation here).  Refusals are counted and reported to the sink.
   void handleOdometry(const nav_msgs::Odometry& msg);
@@ -197,8 +205,14 @@ class Pipeline {
   void autosaveIfDue(const ros::Time& stamp);
   void keyframeForStamps(const LoopClosure& msg);
   void applyLoopClosure(const LoopClosure& msg, const MatchResult& match);
-  // keyframe_T_stamp from the odometry history (identity when the stamp is not covered).
+  // keyframe_T_stamp from the odometry at the stamp (pipeline_input.cpp).
   toro::Pose3 keyframeToStamp(toro::NodeId keyframe, const ros::Time& stamp) const;
+  // odom_T_base at `stamp`: the full-rate history where it covers the stamp, else interpolated
+  // between the keyframes (or the newest odometry) around it; nullopt outside the trajectory.
+  std::optional<toro::Pose3> odometryPoseAt(const ros::Time& stamp) const;
+  // Covariance accounting and the once-only log lines (pipeline_input.cpp).
+  void countOdometryStep(const InformationResult& information);
+  void countLoopClosureInformation(const InformationResult& information);
   void releasePending();
   void refuse(const std::string& category, const std::string& detail);
   void refuseLoopClosure(const MatchResult& match, const LoopClosure& msg);
@@ -225,6 +239,7 @@ class Pipeline {
 
   PipelineOptions options_;
   WarningSink warn_;
+  InfoSink info_;
   toro::TreeOptimizer optimizer_;
   Keyframer keyframer_;
   LoopClosureMatcher matcher_;
@@ -247,6 +262,9 @@ class Pipeline {
   std::uint64_t revision_ = 0;
   std::uint64_t epoch_ = 0;
   PipelineCounters counters_;
+  std::string logged_odometry_rule_;          // the convention last logged ("" none yet)
+  std::vector<AxisReadings> logged_loop_closure_axes_;  // loop-closure readings logged so far
+  std::string loop_closure_rule_;
   double gate_threshold_;
   double robust_width_;  // the robust kernel's width now (adapted after full rounds)
   // The optimiser as it was before the newest loop closure, until that one passed the gate.
@@ -257,6 +275,9 @@ class Pipeline {
   std::unordered_set<std::uint64_t> applied_messages_;  // hashes of applied loop-closure messages
   // Persistence: set by loadGraph until newer odometry arrives; the last autosave.
   std::optional<ros::Time> resume_after_;
+  // The odometry before the next keyframe was not seen (it is the first after a load): it is marked
+  // after_gap so that nothing is interpolated across the gap.
+  bool next_keyframe_after_gap_ = false;
   ros::Time loaded_until_;  // newest keyframe stamp of the last load (input up to it is refused)
   ros::Time last_autosave_stamp_;
   std::uint64_t autosaved_revision_ = 0;

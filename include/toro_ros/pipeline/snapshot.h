@@ -27,6 +27,14 @@ struct PipelineCounters {
   std::uint64_t optimization_passes = 0;  // full and affected passes run
   std::uint64_t autosaves = 0;            // successful autosaves
   std::uint64_t autosave_failures = 0;    // failed ones (each also logged with the reason)
+  // Covariances read axis by axis (covariance_rules.h); none of these is a refusal.  Odometry steps
+  // between keyframes, loop closures as applied:
+  std::uint64_t odometry_steps_default = 0;         // every axis took the defaults
+  std::uint64_t odometry_steps_partly_default = 0;  // some axes (unknown ones) took the defaults
+  std::uint64_t odometry_steps_repaired = 0;        // correlations shrunk to be positive definite
+  std::uint64_t loop_closures_default = 0;
+  std::uint64_t loop_closures_partly_default = 0;
+  std::uint64_t loop_closures_repaired = 0;
   // Refusals by category, "odometry: ..." and "loop closure: ..." (see loop_closure_matcher.h).
   std::map<std::string, std::uint64_t> refused_by_reason;
 };
