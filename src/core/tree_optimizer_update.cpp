@@ -59,40 +59,44 @@ void computeBothShares(const std::vector<std::size_t>& up, const std::vector<std
                        std::vector<double>& up_rotation, std::vector<double>& down_rotation,
                        std::vector<double>& up_translation, std::vector<double>& down_translation,
                        double* rotation_total, double* translation_total) {
+  const double rotation_cap = 1.0 / rotation_information;
+  const double translation_cap = 1.0 / translation_information;
   if (up_rotation.size() < up.size()) up_rotation.resize(up.size());
   if (up_translation.size() < up.size()) up_translation.resize(up.size());
   if (down_rotation.size() < down.size()) down_rotation.resize(down.size());
   if (down_translation.size() < down.size()) down_translation.resize(down.size());
-  const double rotation_cap = 1.0 / rotation_information;
-  const double translation_cap = 1.0 / translation_information;
-  double up_r = 0.0, up_t = 0.0;
-  for (std::size_t i = up.size(); i-- > 0;) {
-    const std::size_t v = up[i];
-    up_r += std::min(inverse_rotation[v], rotation_cap);
-    up_rotation[i] = up_r;
-    up_t += std::min(inverse_translation[v], translation_cap);
-    up_translation[i] = up_t;
-  }
-  double down_r = 0.0, down_t = 0.0;
-  for (std::size_t i = down.size(); i-- > 0;) {
-    const std::size_t v = down[i];
-    down_r += std::min(inverse_rotation[v], rotation_cap);
-    down_rotation[i] = down_r;
-    down_t += std::min(inverse_translation[v], translation_cap);
-    down_translation[i] = down_t;
-  }
+  const double* inverse_r = inverse_rotation.data();
+  const double* inverse_t = inverse_translation.data();
+  // Cumulative sums from the top down each branch, then scaled to the signed shares.
+  const auto accumulate = [&](const std::vector<std::size_t>& branch, double* r, double* t, double* r_total,
+                              double* t_total) {
+    const std::size_t* nodes = branch.data();
+    double sum_r = 0.0, sum_t = 0.0;
+    for (std::size_t i = branch.size(); i-- > 0;) {
+      const std::size_t v = nodes[i];
+      sum_r += std::min(inverse_r[v], rotation_cap);
+      r[i] = sum_r;
+      sum_t += std::min(inverse_t[v], translation_cap);
+      t[i] = sum_t;
+    }
+    *r_total = sum_r;
+    *t_total = sum_t;
+  };
+  double up_r, up_t, down_r, down_t;
+  accumulate(up, up_rotation.data(), up_translation.data(), &up_r, &up_t);
+  accumulate(down, down_rotation.data(), down_translation.data(), &down_r, &down_t);
   *rotation_total = up_r + down_r;
   *translation_total = up_t + down_t;
   const double rotation_scale = 1.0 / *rotation_total;
   const double translation_scale = 1.0 / *translation_total;
-  for (std::size_t i = 0; i < up.size(); ++i) {
-    up_rotation[i] *= -rotation_scale;
-    up_translation[i] *= -translation_scale;
-  }
-  for (std::size_t i = 0; i < down.size(); ++i) {
-    down_rotation[i] *= rotation_scale;
-    down_translation[i] *= translation_scale;
-  }
+  const auto scale = [](std::size_t n, double* r, double* t, double r_scale, double t_scale) {
+    for (std::size_t i = 0; i < n; ++i) {
+      r[i] *= r_scale;
+      t[i] *= t_scale;
+    }
+  };
+  scale(up.size(), up_rotation.data(), up_translation.data(), -rotation_scale, -translation_scale);
+  scale(down.size(), down_rotation.data(), down_translation.data(), rotation_scale, translation_scale);
 }
 
 }  // namespace
@@ -253,8 +257,14 @@ template <class G>
 inline void TreeOptimizer::updateConstraintIn(std::size_t c, double learning_rate) {
   // A loop closure whose robust weight vanished (infinite residual) has nothing to say.
   if (!(constraint_rotation_info_[c] > 0.0) && !(constraint_translation_info_[c] > 0.0)) return;
-  top_ = tree_.path(from_index_[c], to_index_[c], up_, down_);
-  if (top_ == kNone) return;  // ends in different trees: cannot happen for a constraint of the graph
+  const std::size_t a = from_index_[c], b = to_index_[c];
+  const bool naive = !G::kPlanar && options_.rotation_update == RotationUpdate::kNaiveEuler;
+  if (!naive && (tree_.parent(a) == b || tree_.parent(b) == a)) {
+    updateParentEdge<G>(c, learning_rate, tree_.parent(a) == b);
+    return;
+  }
+  const std::size_t top = tree_.path(a, b, up_, down_);
+  if (top == kNone) return;  // ends in different trees: cannot happen for a constraint of the graph
   detail::TreeGroupState<G>& s = state<G>();
   // Poses of the path nodes in the top node's frame; the top node itself is the identity there.
   // The scratch vectors only grow, so a visit never constructs or allocates.
@@ -290,6 +300,56 @@ inline void TreeOptimizer::updateConstraintIn(std::size_t c, double learning_rat
   translationStep<G>(c, learning_rate, translation_sum, &step);
   moveAndWriteBack<G>(up_, up_rotation_share_, up_translation_share_, step, true, s.up_poses);
   moveAndWriteBack<G>(down_, down_rotation_share_, down_translation_share_, step, false, s.down_poses);
+}
+
+template <class G>
+inline void TreeOptimizer::updateParentEdge(std::size_t c, double learning_rate, bool first_end_is_child) {
+  // The general update for a path of one node (the child; its parent is the top), with the loops
+  // written out: the same operations, so the same result bit for bit, without the walk, the share
+  // vectors and the scratch poses that dominate such a short update.
+  using Rotation = typename G::Rotation;
+  detail::TreeGroupState<G>& s = state<G>();
+  const std::size_t child = first_end_is_child ? from_index_[c] : to_index_[c];
+  typename G::Pose& parameter = s.parameters[child];
+  typename G::Pose pose = parameter;  // top_T_child: the parent is the top
+  const typename G::Pose& measurement = s.measurements[c];
+  const int axes = measured_axes_index_[c];
+  const double rotation_info = constraint_rotation_info_[c];
+  if (rotation_info > 0.0) {
+    const Rotation identity = Rotation::Identity();
+    const Rotation& qa = first_end_is_child ? pose.rotation() : identity;
+    const Rotation& qb = first_end_is_child ? identity : pose.rotation();
+    const Rotation& qz = measurement.rotation();
+    typename G::Tangent error = G::log(qa * qz * qb.conjugate());
+    if constexpr (!G::kPlanar) {
+      if (axes >= 0 && s.measured_axes[axes].rotation_partial) {
+        const Matrix3 r = (qa * qz).toRotationMatrix();
+        error = r * (s.measured_axes[axes].rotation_projection * (r.transpose() * error));
+      }
+    }
+    const double weight = std::min(inverse_rotation_weight_[child], 1.0 / rotation_info);
+    const double share = first_end_is_child ? weight * -(1.0 / weight) : weight * (1.0 / weight);
+    const double fraction = stepFraction(learning_rate, rotation_info, weight);
+    pose.setRotationUnchecked(G::exp(share * fraction * error) * pose.rotation());
+  }
+  const double translation_info = constraint_translation_info_[c];
+  if (translation_info > 0.0) {
+    using Translation = typename G::Translation;
+    // The first end after the rotation step: the child itself, or the top (identity).
+    const typename G::Pose top_T_a = first_end_is_child ? pose : typename G::Pose();
+    const Translation b = first_end_is_child ? Translation::Zero() : pose.translation();
+    Translation residual = top_T_a * measurement.translation() - b;
+    if (axes >= 0 && s.measured_axes[axes].translation_partial) {
+      const auto r = (top_T_a.rotation() * measurement.rotation()).toRotationMatrix();
+      residual = r * (s.measured_axes[axes].translation_projection * (r.transpose() * residual));
+    }
+    const double weight = std::min(inverse_translation_weight_[child], 1.0 / translation_info);
+    const double share = first_end_is_child ? weight * -(1.0 / weight) : weight * (1.0 / weight);
+    const double fraction = stepFraction(learning_rate * translation_rate_factor_, translation_info, weight);
+    pose.setTranslation(pose.translation() + (share * fraction) * residual);
+  }
+  parameter = pose;
+  parameter.renormalize();
 }
 
 template <class G>

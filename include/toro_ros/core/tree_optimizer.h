@@ -200,6 +200,8 @@ class TreeOptimizer {
   template <class G>
   void translationStep(std::size_t c, double learning_rate, double weight_sum, PathStep<G>* step);
   template <class G>
+  void updateParentEdge(std::size_t c, double learning_rate, bool first_end_is_child);
+  template <class G>
   void composeFromTop(const std::vector<std::size_t>& branch, std::vector<typename G::Pose>& poses);
   // first_end_branch: `branch` is the one of the constraint's first end (step.first_end_rotation).
   template <class G>
@@ -242,7 +244,6 @@ class TreeOptimizer {
   double translation_rate_factor_ = 1.0;  // gamma / translation_gamma
   // Scratch buffers reused by updateConstraint (no allocation in the hot loop).
   std::vector<std::size_t> up_, down_;
-  std::size_t top_ = 0;
   // Signed fraction of the correction per path node, rotational and translational.
   std::vector<double> up_rotation_share_, down_rotation_share_;
   std::vector<double> up_translation_share_, down_translation_share_;
