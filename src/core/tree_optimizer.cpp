@@ -80,8 +80,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   for (std::size_t c = 0; c < graph_.numConstraints(); ++c) registerConstraint(c);
   rotation_weight_.assign(n, 0.0);
   translation_weight_.assign(n, 0.0);
-  inverse_rotation_weight_.assign(n, kUnconstrained);
-  inverse_translation_weight_.assign(n, kUnconstrained);
+  inverse_weight_.assign(n, InverseStiffness{kUnconstrained, kUnconstrained});
   affected_mark_.assign(graph_.numConstraints(), 0);
   top_level_.assign(graph_.numConstraints(), 0);  // per constraint, like the vectors above
   topological_order_ = tree_.topologicalOrder();
@@ -126,8 +125,8 @@ void TreeOptimizer::adjustPreconditioner(std::size_t c, double rotation_delta, d
     for (std::size_t v : *branch) {
       rotation_weight_[v] = std::max(0.0, rotation_weight_[v] + rotation_delta);
       translation_weight_[v] = std::max(0.0, translation_weight_[v] + translation_delta);
-      inverse_rotation_weight_[v] = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
-      inverse_translation_weight_[v] =
+      inverse_weight_[v].rotation = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
+      inverse_weight_[v].translation =
           translation_weight_[v] > 0.0 ? 1.0 / translation_weight_[v] : kUnconstrained;
     }
   }
@@ -209,8 +208,8 @@ void TreeOptimizer::addToPreconditioner(std::size_t c) {
     for (std::size_t v : *branch) {
       rotation_weight_[v] += constraint_rotation_info_[c];
       translation_weight_[v] += constraint_translation_info_[c];
-      inverse_rotation_weight_[v] = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
-      inverse_translation_weight_[v] =
+      inverse_weight_[v].rotation = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
+      inverse_weight_[v].translation =
           translation_weight_[v] > 0.0 ? 1.0 / translation_weight_[v] : kUnconstrained;
     }
   }
@@ -219,8 +218,7 @@ void TreeOptimizer::addToPreconditioner(std::size_t c) {
 void TreeOptimizer::refreshStructure() {
   std::fill(rotation_weight_.begin(), rotation_weight_.end(), 0.0);
   std::fill(translation_weight_.begin(), translation_weight_.end(), 0.0);
-  std::fill(inverse_rotation_weight_.begin(), inverse_rotation_weight_.end(), kUnconstrained);
-  std::fill(inverse_translation_weight_.begin(), inverse_translation_weight_.end(), kUnconstrained);
+  std::fill(inverse_weight_.begin(), inverse_weight_.end(), InverseStiffness{kUnconstrained, kUnconstrained});
   top_level_.assign(graph_.numConstraints(), 0);
   order_.resize(graph_.numConstraints());
   for (std::size_t c = 0; c < graph_.numConstraints(); ++c) {
@@ -260,8 +258,7 @@ void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
   incident_.emplace_back();
   rotation_weight_.push_back(0.0);
   translation_weight_.push_back(0.0);
-  inverse_rotation_weight_.push_back(kUnconstrained);
-  inverse_translation_weight_.push_back(kUnconstrained);
+  inverse_weight_.push_back(InverseStiffness{kUnconstrained, kUnconstrained});
   topological_order_.push_back(v);
 }
 

@@ -220,8 +220,13 @@ class TreeOptimizer {
   detail::TreeGroupState<Planar> planar_state_;
   std::vector<double> rotation_weight_;  // preconditioner per node: sum of rotational information
   std::vector<double> translation_weight_;
-  std::vector<double> inverse_rotation_weight_;      // 1 / rotation_weight_, kept beside it
-  std::vector<double> inverse_translation_weight_;
+  // 1 / rotation_weight_ and 1 / translation_weight_, kept beside them; side by side per node,
+  // because every update reads both for each path node.
+  struct InverseStiffness {
+    double rotation;
+    double translation;
+  };
+  std::vector<InverseStiffness> inverse_weight_;
   std::vector<std::size_t> from_index_, to_index_;  // dense endpoints per constraint
   // Scalar information per constraint (block_stiffness.h): base_* as the information gives it,
   // constraint_* = base * robust weight, used by the steps and the preconditioner.
