@@ -53,13 +53,15 @@ toro::Matrix6 toBodyFrame(const toro::Matrix6& odom_covariance, const toro::Pose
 }  // namespace
 
 InformationResult Keyframer::stepInformation(const OdometrySample& older, const OdometrySample& newer) const {
+  const auto information = [&](const toro::Matrix6& covariance) {
+    return informationFromCovariance(options_.planar ? planarCovariance(covariance) : covariance,
+                                     options_.default_stddev);
+  };
   switch (options_.covariance_mode) {
     case OdometryCovarianceMode::kDifference:
-      return informationFromCovariance(toBodyFrame(newer.covariance - older.covariance, newer.odom_T_base),
-                                       options_.default_stddev);
+      return information(toBodyFrame(newer.covariance - older.covariance, newer.odom_T_base));
     case OdometryCovarianceMode::kLatest:
-      return informationFromCovariance(toBodyFrame(newer.covariance, newer.odom_T_base),
-                                       options_.default_stddev);
+      return information(toBodyFrame(newer.covariance, newer.odom_T_base));
     case OdometryCovarianceMode::kDefault:
       break;
   }

@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/planar.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 #include "toro_ros/pipeline/persistence.h"
 #include "toro_ros/pipeline/pipeline.h"
@@ -109,7 +110,10 @@ std::string Pipeline::loadGraph(const GraphFileRef& file) {
 
   clearGraph();
   replaceGraph(graph);
-  for (const KeyframeRecord& k : sidecar.keyframes) keyframes_.append(k);
+  for (KeyframeRecord k : sidecar.keyframes) {
+    if (options_.planar) k.odom_T_base = toro::projectToPlane(k.odom_T_base);  // as at input
+    keyframes_.append(k);
+  }
   is_loop_closure_.assign(graph.numConstraints(), false);
   for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;
   rejected_ = sidecar.rejected;

@@ -28,6 +28,9 @@ struct KeyframerOptions {
   double interval_sec = 10.0;  // ... or this much time passed (0 = never by time)
   OdometryCovarianceMode covariance_mode = OdometryCovarianceMode::kDifference;
   DefaultStddev default_stddev;  // when the covariance is zero or unusable
+  // Read only the x, y, yaw rows of the covariances (planarCovariance); the pipeline sets it from
+  // PipelineOptions::planar.
+  bool planar = false;
   std::string validate() const;
 };
 
