@@ -133,9 +133,11 @@ OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options,
       record(OptimizePhase::kFinish, it.iteration, it.chi2, it.lambda, it.accepted, nullptr);
     });
   }
-  report.final_chi2 = robustObjective(graph, options.robust);
+  RobustOptions final_robust = options.robust;
+  if (report.robust_width > 0.0) final_robust.width = report.robust_width;
+  report.final_chi2 = robustObjective(graph, final_robust);
   report.seconds = secondsSince(start);
-  report.weights = robustWeights(graph, options.robust);
+  report.weights = robustWeights(graph, final_robust);
   for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
     if (!isLoopClosure(graph.constraints()[c])) continue;
     ++report.loop_closures;

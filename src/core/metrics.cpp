@@ -114,6 +114,21 @@ std::vector<double> robustWeights(const PoseGraph& graph, const RobustOptions& r
   return out;
 }
 
+double adaptedRobustWidth(const PoseGraph& graph, const RobustOptions& robust) {
+  if (!robust.enabled() || !(robust.adaptive_width_factor > 0.0)) return robust.width;
+  std::vector<double> accepted;  // weight >= kRejectedWeight
+  for (const Constraint& c : graph.constraints()) {
+    if (!isLoopClosure(c)) continue;
+    const double chi2 = constraintChi2Of(graph, c);
+    if (robustWeight(robust, chi2) >= kRejectedWeight) accepted.push_back(chi2);
+  }
+  if (accepted.empty()) return robust.width;
+  const auto top = accepted.begin() + static_cast<std::ptrdiff_t>(0.99 * static_cast<double>(accepted.size() - 1));
+  std::nth_element(accepted.begin(), top, accepted.end());
+  const double width = robust.adaptive_width_factor * *top;
+  return width > 0.0 && width < robust.width ? width : robust.width;
+}
+
 double alignedPositionRmse(const PoseGraph& estimate, const PoseGraph& reference) {
   std::vector<Vector3> from, to;
   for (const Node& n : estimate.nodes()) {

@@ -116,9 +116,11 @@ void ParameterTree::addNode(const PoseGraph& graph, std::size_t node_index) {
 }
 
 void ParameterTree::addConstraint(const PoseGraph& graph, std::size_t constraint_index,
-                                  std::vector<std::size_t>* reparented) {
+                                  std::vector<std::size_t>* reparented, bool may_be_tree_edge) {
   const Constraint& c = graph.constraints()[constraint_index];
   Index u = graph.indexOf(c.from), v = graph.indexOf(c.to);
+  // A constraint kept out of the tree's shape still needs a tree path between its ends.
+  if (!may_be_tree_edge && rootOf(u) == rootOf(v)) return;
   neighbours_[u].push_back(v);
   neighbours_[v].push_back(u);
   if (!normal_) {

@@ -27,6 +27,8 @@ const char* robustKernelName(RobustKernel kernel) {
 
 std::string RobustOptions::validate() const {
   if (!(std::isfinite(width) && width > 0)) return "robust kernel width must be a positive finite number";
+  if (!(std::isfinite(adaptive_width_factor) && adaptive_width_factor >= 0))
+    return "robust adaptive width factor must be a finite number >= 0 (0: fixed width)";
   return {};
 }
 

@@ -11,7 +11,6 @@
 // robust objective (sum rho over loop closures + chi2 of odometry) tells which one explains the
 // measurements better, and a few finish iterations make that comparison reliable (after TORO alone
 // the second start's map is not yet converged).
-#include <cstdlib>
 #include <optional>
 #include <sstream>
 
@@ -25,31 +24,49 @@ namespace detail {
 
 namespace {
 
+// The second start's plain finish on its subgraph runs at most this many iterations: it only
+// needs to be near the optimum, and with wrong loop closures in the subgraph it is slow.
+constexpr std::size_t kSubsetFinishIterations = 10;
+
+// The width adaptation stops once the width moves by less than this factor, or after this many
+// refinements (each a finish from the previous solution).
+constexpr double kWidthSettled = 1.5;
+constexpr int kWidthRounds = 4;
+constexpr int kSettleSteps = 10;
+
 struct Candidate {
   PoseGraph graph;
   std::string reason;  // why its TORO phase ended
   FinishReport finish;
   double objective = 0.0;
+  double width = 0.0;  // the kernel width its finish ran with (0: none yet)
 };
 
-// The odometry and the loop closures that agree with it alone (innovation chi2 within the
-// chi-square quantile at kOdometryConsistencyConfidence), at the dead-reckoned poses.
-PoseGraph odometryConsistentSubgraph(const PoseGraph& graph, std::size_t* kept) {
+// The odometry and the loop closures that agree with it alone (innovation chi2 within
+// kOdometryConsistencyLenience times the chi-square quantile at kOdometryConsistencyConfidence),
+// plus those between poses the odometry does not connect (nothing to test them against, and the
+// map needs them to join its pieces), at the dead-reckoned poses.  `in_subset` marks them.
+PoseGraph odometryConsistentSubgraph(const PoseGraph& graph, std::size_t* kept, std::vector<char>* in_subset) {
   TreeOptimizer dead_reckoning;
   dead_reckoning.setGraph(graph, InitialGuess::kChainOdometry);
   const PoseGraph& odometry = dead_reckoning.graph();
   const std::vector<double> innovation = odometryInnovationChi2(odometry);
   const int dof = graph.dimension() == GraphDimension::k2D ? 3 : 6;
-  const double threshold = chiSquareQuantile(kOdometryConsistencyConfidence, dof);
+  const double threshold = kOdometryConsistencyLenience * chiSquareQuantile(kOdometryConsistencyConfidence, dof);
   PoseGraph subset;
   subset.setDimension(graph.dimension());
   for (const Node& n : odometry.nodes()) subset.addNode(n.id, n.pose);
   for (NodeId id : graph.fixedNodes()) subset.addFixed(id);
   *kept = 0;
+  in_subset->assign(graph.numConstraints(), 1);
   for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
     const Constraint& k = graph.constraints()[c];
     if (isLoopClosure(k)) {
-      if (!(innovation[c] >= 0.0 && innovation[c] <= threshold)) continue;
+      const bool unconnected = innovation[c] < 0.0;
+      if (!(unconnected || innovation[c] <= threshold)) {
+        (*in_subset)[c] = 0;
+        continue;
+      }
       ++*kept;
     }
     subset.addConstraint(k);
@@ -71,42 +88,74 @@ class RobustRun {
   Candidate fromDeadReckoning(const PoseGraph& graph) {
     TreeOptimizer toro(robust_toro_);
     toro.setGraph(graph, InitialGuess::kChainOdometry);
-    report_->initial_chi2 = robustObjective(toro.graph(), options_.robust);
-    record_(OptimizePhase::kStart, 0, report_->initial_chi2, 0.0, true, &toro.graph());
-    Candidate c{graph, runToroPhase(toro, options_, report_->initial_chi2, record_, report_), {}, 0.0};
+    const double start = robustObjective(toro.graph(), options_.robust);
+    record_(OptimizePhase::kStart, 0, start, 0.0, true, &toro.graph());
+    Candidate c{graph, runToroPhase(toro, options_, start, record_, report_), {}, 0.0};
     copyPoses(toro.graph(), c.graph);
     return c;
   }
 
-  // Start 2: the odometry-consistent subgraph by plain TORO (chained on its tree: the loop
-  // closures the odometry agrees with close their loops, however long), then robust TORO passes
-  // over everything.
-  Candidate fromConsistentLoopClosures(const PoseGraph& graph) {
-    PoseGraph subset = odometryConsistentSubgraph(graph, &report_->odometry_consistent_loop_closures);
-    TreeOptimizerOptions plain_toro = robust_toro_;
-    plain_toro.robust = RobustOptions{};
+  // Start 2: the plain optimum of the odometry-consistent subgraph (TORO chained on its tree,
+  // then at most kSubsetFinishIterations of the plain finish): the loop closures the odometry
+  // agrees with close their loops, however long, and a clean file starts at its optimum.
+  Candidate fromConsistentLoopClosures(const PoseGraph& graph, std::vector<char>* in_subset) {
+    PoseGraph subset = odometryConsistentSubgraph(graph, &report_->odometry_consistent_loop_closures, in_subset);
     OptimizeOptions plain = options_;
     plain.robust = RobustOptions{};
-    TreeOptimizer on_subset(plain_toro);
-    on_subset.setGraph(subset, InitialGuess::kChainOnTree);
-    runToroPhase(on_subset, plain, g2oChi2(on_subset.graph()), record_, report_);
-    Candidate c{graph, "", {}, 0.0};
-    copyPoses(on_subset.graph(), c.graph);
-    TreeOptimizer toro(robust_toro_);
-    toro.setGraph(c.graph, InitialGuess::kFromGraph);
-    c.reason = runToroPhase(toro, options_, robustObjective(toro.graph(), options_.robust), record_, report_);
-    copyPoses(toro.graph(), c.graph);
+    plain.initial_guess = InitialGuess::kChainOnTree;
+    plain.finish.max_iterations = std::min(plain.finish.max_iterations, kSubsetFinishIterations);
+    if (options_.mode != OptimizeMode::kToroThenFinish) plain.mode = OptimizeMode::kToro;
+    const OptimizeReport subset_report = optimizeGraph(subset, plain);
+    report_->toro_iterations += subset_report.toro_iterations;
+    report_->subset_finish_iterations = subset_report.finish.iterations;
+    report_->initial_chi2 = robustObjective(graph, options_.robust);
+    Candidate c{graph, subset_report.switch_reason, {}, 0.0};
+    copyPoses(subset, c.graph);
+    record_(OptimizePhase::kStart, 0, robustObjective(c.graph, options_.robust), 0.0, true, &c.graph);
     return c;
   }
 
-  void finish(Candidate& c, std::size_t max_iterations) {
+  // The width the residuals of `c` call for now, the adaptation repeated on them until it settles
+  // (no solve in between: each step only looks at the residuals, which stay as they are).
+  double settledWidth(const Candidate& c, double width) const {
+    RobustOptions robust = options_.robust;
+    robust.width = width;
+    for (int k = 0; k < kSettleSteps; ++k) {
+      const double adapted = adaptedRobustWidth(c.graph, robust);
+      const bool settled = adapted > robust.width / kWidthSettled && adapted < robust.width * kWidthSettled;
+      robust.width = adapted;
+      if (settled) break;
+    }
+    return robust.width;
+  }
+
+  void finish(Candidate& c, std::size_t max_iterations, double width = 0.0) {
     FinishOptions o = finish_;
     o.max_iterations = max_iterations;
+    if (width > 0.0) o.robust.width = width;
+    c.width = o.robust.width;
     c.finish = LevenbergMarquardt(o).optimize(c.graph, [&](const FinishIteration& it) {
       record_(OptimizePhase::kFinish, it.iteration, it.chi2, it.lambda, it.accepted, nullptr);
     });
     // Over every loop closure: the finish's own objective leaves out the ones it set aside.
-    c.objective = robustObjective(c.graph, options_.robust);
+    RobustOptions r = options_.robust;
+    if (width > 0.0) r.width = width;
+    c.objective = robustObjective(c.graph, r);
+  }
+
+  // Adapts the kernel width to the accepted loop closures' residuals (RobustOptions::
+  // adaptive_width_factor) and refines `c` with it, until the width changes by less than a factor
+  // of kWidthSettled (at most kWidthRounds times); returns the width the result holds for.
+  double adaptWidth(Candidate& c) {
+    double width = c.width;
+    for (int round = 0; round < kWidthRounds; ++round) {
+      const double adapted = settledWidth(c, width);
+      if (!(adapted > 0.0) || (adapted > width / kWidthSettled && adapted < width * kWidthSettled)) break;
+      width = adapted;
+      finish(c, options_.finish.max_iterations, width);
+      report_->width_rounds += 1;
+    }
+    return width;
   }
 
  private:
@@ -138,29 +187,48 @@ void optimizeRobustly(PoseGraph& graph, const OptimizeOptions& options, const Re
       c.objective = robustObjective(c.graph, options.robust);
     }
   };
-  Candidate first = run.fromDeadReckoning(graph);
-  complete(first);
-  // When nothing ended rejected the first start is the plain optimum: no other start can explain
-  // the measurements better, so the second one is not needed (clean files cost one solve).
-  const std::vector<double> first_weights = robustWeights(first.graph, options.robust);
+  // The odometry-consistent start first: on a clean file it is the plain optimum however long the
+  // loops.  Dead reckoning is needed only when some loop closure the odometry agreed with (or
+  // could not judge) ended rejected: then wrong ones may have bent that start.
+  std::vector<char> in_subset;
+  Candidate first = run.fromConsistentLoopClosures(graph, &in_subset);
+  // Its residuals are near a plain optimum already: the width may narrow to them before the robust
+  // finish (senders whose covariances are too large).
+  if (with_finish) {
+    run.finish(first, options.finish.max_iterations, run.settledWidth(first, options.robust.width));
+  } else {
+    complete(first);
+  }
+  RobustOptions first_robust = options.robust;
+  if (first.width > 0.0) first_robust.width = first.width;
+  const std::vector<double> first_weights = robustWeights(first.graph, first_robust);
+  bool contaminated = false;
+  for (std::size_t c = 0; c < graph.numConstraints() && !contaminated; ++c)
+    contaminated = in_subset[c] && isLoopClosure(graph.constraints()[c]) && first_weights[c] < kRejectedWeight;
   Candidate* best = &first;
   std::optional<Candidate> second;
-  if (rejectedLoopClosures(first.graph, first_weights) > 0 && !std::getenv("TORO_ONLY_A")) {
-    second = run.fromConsistentLoopClosures(graph);
+  if (contaminated) {
+    second = run.fromDeadReckoning(graph);
     complete(*second);
+    // Compared under one kernel: the first start's width, which follows its residuals.
+    RobustOptions common = options.robust;
+    if (first.width > 0.0) common.width = first.width;
+    first.objective = robustObjective(first.graph, common);
+    second->objective = robustObjective(second->graph, common);
     if (second->objective < first.objective) best = &*second;
     report->candidate_finish_iterations = (best == &first ? second->finish : first.finish).iterations;
   }
+  report->robust_width = with_finish ? run.adaptWidth(*best) : options.robust.width;
   report->toro_seconds = 0.0;  // the phases interleave; see the history
   if (with_finish) report->finish = best->finish;
-  report->robust_start = best == &first ? RobustStart::kDeadReckoning : RobustStart::kOdometryConsistent;
+  report->robust_start = best == &first ? RobustStart::kOdometryConsistent : RobustStart::kDeadReckoning;
   std::ostringstream why;
-  why << "kept the start from " << (best == &first ? "dead reckoning" : "the odometry-consistent loop closures");
+  why << "kept the start from " << (best == &first ? "the odometry-consistent loop closures" : "dead reckoning");
   if (second) {
     why << " (robust objective " << std::min(first.objective, second->objective) << " against "
         << std::max(first.objective, second->objective) << ")";
   } else {
-    why << " (no loop closure rejected: the other start was not needed)";
+    why << " (none of its loop closures rejected: dead reckoning was not needed)";
   }
   why << "; its TORO phase: " << best->reason;
   report->switch_reason = why.str();

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cstdlib>
 #include <cmath>
 #include <numeric>
 #include <sstream>
@@ -80,14 +79,15 @@ double shrinkFactor(double rho) {
 template <class Model>
 class LmRun {
  public:
-  LmRun(PoseGraph& graph, const FinishOptions& options)
+  // With `end_when_regained`, the run stops (kSetAsideRegained) as soon as a set-aside loop closure
+  // regains weight, so the caller can rebuild the problem with it in the factorisation.
+  LmRun(PoseGraph& graph, const FinishOptions& options, bool end_when_regained = false)
       : options_(options),
+        end_when_regained_(end_when_regained),
         problem_(graph, options.linear_solver, options.robust,
-                 options.robust.enabled() ? (std::getenv("TORO_SET_ASIDE") ? std::atof(std::getenv("TORO_SET_ASIDE")) : options.robust_set_aside_weight) : 0.0) {}
+                 options.robust.enabled() ? options.robust_set_aside_weight : 0.0) {}
 
   FinishReport run(PoseGraph& graph, const FinishCallback& callback);
-  // Set-aside loop closures that regained weight by the end of run().
-  std::size_t regained() const { return regained_; }
 
  private:
   // Solves for and tries one step; fills `it` and updates the state and report.stop.
@@ -100,8 +100,8 @@ class LmRun {
   Clock::time_point start_ = Clock::now();  // before problem_: setup counts in report_.seconds
   detail::FinishProblem<Model> problem_;
   FinishReport report_;
+  bool end_when_regained_ = false;
   double chi2_ = 0.0, gradient_ = 0.0, lambda_ = 0.0, nu_ = 2.0, diagonal_scale_ = 1.0;
-  std::size_t regained_ = 0;
   Eigen::VectorXd step_;
 };
 
@@ -135,7 +135,7 @@ FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback)
   report_.final_objective = chi2_;
   if (options_.robust.enabled()) {
     report_.final_chi2 = problem_.plainChi2(&report_.weights);
-    regained_ = problem_.numSetAside() ? problem_.setAsideRegained(options_.robust_set_aside_weight) : 0;
+    report_.conjugate_gradient_iterations = problem_.conjugateGradientIterations();
   } else {
     report_.final_chi2 = chi2_;
     report_.weights.assign(graph.numConstraints(), 1.0);
@@ -195,6 +195,10 @@ void LmRun<Model>::accept(std::vector<typename Model::State> trial, double new_c
     }
   }
   if (gradient_ < options_.gradient_tolerance) report_.stop = FinishStop::kGradient;
+  if (report_.stop == FinishStop::kNotRun && end_when_regained_ && problem_.numSetAside() > 0 &&
+      problem_.setAsideRegained(options_.robust_set_aside_weight) > 0) {
+    report_.stop = FinishStop::kSetAsideRegained;
+  }
 }
 
 template <class Model>
@@ -245,6 +249,8 @@ const char* finishStopName(FinishStop stop) {
       return "no further decrease (damping limit)";
     case FinishStop::kNoConstraints:
       return "nothing to optimise";
+    case FinishStop::kSetAsideRegained:
+      return "set-aside loop closures regained weight";
   }
   return "unknown";
 }
@@ -260,12 +266,15 @@ LevenbergMarquardt::LevenbergMarquardt(const FinishOptions& options) : options_(
 
 namespace {
 
-// Runs the finish, again while set-aside loop closures regain weight (bounded); one report.
+// Runs the finish; when set-aside loop closures regain weight, again with them in the
+// factorisation (at most kMaxSetAsideRounds rounds; the last one runs to the end regardless,
+// exact through the conjugate-gradient correction); one report.
 template <class Model>
 FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const FinishCallback& callback) {
   FinishReport total;
+  FinishOptions round_options = options;
   for (std::size_t round = 1;; ++round) {
-    LmRun<Model> run(graph, options);
+    LmRun<Model> run(graph, round_options, round < kMaxSetAsideRounds);
     FinishReport r = run.run(graph, callback);
     if (round == 1) {
       total = r;
@@ -279,9 +288,14 @@ FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const 
       total.rounds = round;
       total.seconds += r.seconds;
       total.factorization_seconds += r.factorization_seconds;
+      total.conjugate_gradient_iterations += r.conjugate_gradient_iterations;
       total.history.insert(total.history.end(), r.history.begin(), r.history.end());
     }
-    if (run.regained() == 0 || round >= kMaxSetAsideRounds) return total;
+    if (r.stop != FinishStop::kSetAsideRegained || total.iterations >= options.max_iterations) {
+      if (total.stop == FinishStop::kSetAsideRegained) total.stop = FinishStop::kMaxIterations;
+      return total;
+    }
+    round_options.max_iterations = options.max_iterations - total.iterations;
   }
 }
 

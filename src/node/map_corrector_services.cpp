@@ -3,6 +3,7 @@
 // another thread.  Commands capture by value: after a timeout they still run, later.
 #include <chrono>
 #include <cmath>
+#include <sstream>
 
 #include "toro_ros/node/map_corrector_node.h"
 
@@ -96,6 +97,13 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
   res.odometry_messages = r->counters.odometry_messages;
   res.time_jump_resets = r->counters.time_jump_resets;
   res.queue_length = worker_->queueLength();
+  res.loop_closures_down_weighted = r->down_weighted.size();
+  for (const DownWeightedLoopClosure& d : r->down_weighted) {
+    std::ostringstream line;
+    line << d.from << " -> " << d.to << " weight " << d.weight << " chi2 " << d.chi2;
+    res.down_weighted_loop_closures.push_back(line.str());
+  }
+  res.robust_width = r->robust_width;
   res.queue_dropped = worker_->dropped();
   res.last_chi2 = r->last_chi2;
   res.last_optimization_sec = r->last_optimization_sec;

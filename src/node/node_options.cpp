@@ -1,6 +1,7 @@
 #include "toro_ros/node/node_options.h"
 
 #include <cmath>
+#include <optional>
 #include <sstream>
 
 namespace toro_ros {
@@ -92,6 +93,13 @@ class ParamReader {
   std::set<std::string> known_;
 };
 
+// robust_kernel: a kernel that weighs ("none" is robust_loop_closures: false).
+std::optional<toro::RobustKernel> robustKernelChoice(const std::string& name) {
+  const auto kernel = toro::robustKernelFromString(name);
+  if (!kernel || *kernel == toro::RobustKernel::kNone) return std::nullopt;
+  return kernel;
+}
+
 void readPipeline(ParamReader& r, PipelineOptions& p) {
   r.read("keyframe_distance_m", p.keyframer.distance_m);
   r.read("keyframe_angle_rad", p.keyframer.angle_rad);
@@ -113,6 +121,13 @@ void readPipeline(ParamReader& r, PipelineOptions& p) {
   r.read("planar", p.planar);
   r.read("time_jump_reset_sec", p.time_jump_reset_sec);
   r.read("odometry_history_sec", p.odometry_history_sec);
+  bool robust = p.robust.enabled();
+  r.read("robust_loop_closures", robust);
+  toro::RobustKernel kernel = p.robust.enabled() ? p.robust.kernel : toro::RobustKernel::kDcs;
+  r.readChoice("robust_kernel", kernel, robustKernelChoice, "dcs, cauchy or huber");
+  p.robust.kernel = robust ? kernel : toro::RobustKernel::kNone;
+  r.read("robust_width", p.robust.width);
+  r.read("robust_adaptive_width_factor", p.robust.adaptive_width_factor);
   r.read("loop_closure_gate_confidence", p.loop_closure_gate_confidence);
   r.read("loop_closure_gate_variance_factor", p.loop_closure_gate_variance_factor);
   r.read("autosave_path", p.persistence.autosave_path);

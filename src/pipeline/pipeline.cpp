@@ -1,5 +1,6 @@
 #include "toro_ros/pipeline/pipeline.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -18,6 +19,8 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr int kMaxRecheckRounds = 10;
+// The robust width adapts only once this many accepted loop closures give its percentile.
+constexpr std::size_t kMinLoopClosuresToAdaptWidth = 50;
 
 // Seconds of wall time spent in `f`; reported only, never used to decide anything.
 template <class F>
@@ -25,13 +28,6 @@ double timed(F&& f) {
   const auto t0 = std::chrono::steady_clock::now();
   f();
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
-toro::TreeOptimizerOptions optimizerOptions(const PipelineOptions& o) {
-  toro::TreeOptimizerOptions out;
-  out.gamma = o.optimization.gamma;
-  out.parameterization = o.planar ? toro::Parameterization::kPlanar : toro::Parameterization::kSpatial;
-  return out;
 }
 
 KeyframerOptions keyframerOptions(const PipelineOptions& o) {
@@ -65,6 +61,8 @@ std::string withoutLeadingSlash(const std::string& frame) {
 
 }  // namespace
 
+std::string toString(toro::RobustKernel kernel) { return toro::robustKernelName(kernel); }
+
 std::string OptimizationOptions::validate() const {
   if (!(std::isfinite(gamma) && gamma > 0)) return "optimization gamma must be > 0";
   if (full_iterations < 0) return "optimization full_iterations must be >= 0";
@@ -87,19 +85,23 @@ std::string PipelineOptions::validate() const {
     return "loop_closure_gate_confidence must be in [0, 1) (0 disables the gate)";
   if (!(std::isfinite(loop_closure_gate_variance_factor) && loop_closure_gate_variance_factor > 0))
     return "loop_closure_gate_variance_factor must be > 0";
+  const std::string robust_problem = robust.validate();
+  if (!robust_problem.empty()) return robust_problem;
   return persistence.validate();
 }
 
 Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn)
     : options_(options),
       warn_(std::move(warn)),
-      optimizer_(optimizerOptions(options)),
+      optimizer_(),
       keyframer_(keyframerOptions(options)),
       matcher_(options.matcher),
       odometry_history_(options.odometry_history_sec),
-      last_chi2_(kNaN) {
+      last_chi2_(kNaN),
+      robust_width_(options.robust.width) {
   const std::string error = options.validate();
   if (!error.empty()) throw std::invalid_argument("invalid pipeline options: " + error);
+  optimizer_ = toro::TreeOptimizer(optimizerOptions());
   // A loop closure's residual has 6 components (translation and rotation), 3 in the plane.
   gate_threshold_ =
       options.loop_closure_gate_confidence > 0
@@ -192,7 +194,8 @@ void Pipeline::appendKeyframe(const OdometrySample& sample, const std::optional<
   if (last_full_stamp_.isZero()) last_full_stamp_ = sample.stamp;
   ++keyframes_since_full_;
   if (!step) return;
-  toro::Constraint c{previous, id, step->previous_T_current, step->information.information};
+  toro::Constraint c{previous, id, step->previous_T_current, step->information.information,
+                     toro::ConstraintKind::kOdometry};
   optimizer_.addConstraint(c);  // endpoints exist and the information is SPD by construction
   is_loop_closure_.push_back(false);
 }
@@ -254,7 +257,7 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
     measurement = keyframeToStamp(match.from, msg.stamp_from) * measurement *
                   keyframeToStamp(match.to, msg.stamp_to).inverse();
   }
-  toro::Constraint c{match.from, match.to, measurement, info.information};
+  toro::Constraint c{match.from, match.to, measurement, info.information, toro::ConstraintKind::kLoopClosure};
   if (gateEnabled()) beginGate(msg);
   try {
     optimizer_.addConstraint(c);
@@ -330,8 +333,20 @@ bool Pipeline::runScheduledOptimization() {
   if (full_passes_left_ == 0) return false;
   --full_passes_left_;
   runFullPass();
-  if (full_passes_left_ == 0) recheckLoopClosures();
+  if (full_passes_left_ == 0) {
+    recheckLoopClosures();
+    adaptRobustWidth();
+  }
   return true;
+}
+
+toro::TreeOptimizerOptions Pipeline::optimizerOptions() const {
+  toro::TreeOptimizerOptions out;
+  out.gamma = options_.optimization.gamma;
+  out.robust = options_.robust;
+  out.robust.width = robust_width_;
+  out.parameterization = options_.planar ? toro::Parameterization::kPlanar : toro::Parameterization::kSpatial;
+  return out;
 }
 
 void Pipeline::replaceGraph(const toro::PoseGraph& graph) {
@@ -339,17 +354,57 @@ void Pipeline::replaceGraph(const toro::PoseGraph& graph) {
   // would) rather than setGraph: that is the path every live keyframe takes, and TreeOptimizer's
   // online growth right after setGraph wrote out of bounds in the core at the time of writing
   // (see the issue 4 report).
-  optimizer_ = toro::TreeOptimizer(optimizerOptions(options_));
+  optimizer_ = toro::TreeOptimizer(optimizerOptions());
   for (const toro::Node& n : graph.nodes()) optimizer_.addNode(n.id, n.pose);
-  for (const toro::Constraint& c : graph.constraints()) optimizer_.addConstraint(c);
+  for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
+    toro::Constraint k = graph.constraints()[c];
+    k.kind = c < is_loop_closure_.size() && is_loop_closure_[c] ? toro::ConstraintKind::kLoopClosure
+                                                                : toro::ConstraintKind::kOdometry;
+    optimizer_.addConstraint(k);
+  }
   optimizer_.clearAffected();
   ++revision_;
+}
+
+void Pipeline::adaptRobustWidth() {
+  if (!options_.robust.enabled() || !(options_.robust.adaptive_width_factor > 0.0)) return;
+  // The statistic that decides acceptance is each loop closure's innovation when it arrived, so
+  // the width follows those of the accepted ones (settled residuals are far smaller, and would
+  // narrow the width below what the next right loop closure needs after some drift).
+  std::vector<double> accepted;
+  const std::vector<double>& arrival = optimizer_.arrivalChi2();
+  const std::vector<double>& weights = optimizer_.weights();
+  for (std::size_t c = 0; c < arrival.size(); ++c)
+    if (is_loop_closure_[c] && arrival[c] >= 0.0 && weights[c] >= toro::kRejectedWeight) accepted.push_back(arrival[c]);
+  if (accepted.size() < kMinLoopClosuresToAdaptWidth) return;
+  const auto top = accepted.begin() + static_cast<std::ptrdiff_t>(0.99 * static_cast<double>(accepted.size() - 1));
+  std::nth_element(accepted.begin(), top, accepted.end());
+  const double adapted = std::min(options_.robust.width, options_.robust.adaptive_width_factor * *top);
+  // Only a clear change is worth it (each one re-weights every loop closure).
+  if (!(adapted > 0.0) || (adapted > robust_width_ / 1.5 && adapted < robust_width_ * 1.5)) return;
+  robust_width_ = adapted;
+  optimizer_.setRobustWidth(adapted);
+  optimizer_.refreshWeights();
+  ++revision_;
+}
+
+std::vector<DownWeightedLoopClosure> Pipeline::downWeighted() const {
+  std::vector<DownWeightedLoopClosure> out;
+  const toro::PoseGraph& g = optimizer_.graph();
+  const std::vector<double>& w = optimizer_.weights();
+  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
+    if (!is_loop_closure_[c] || !(w[c] < toro::kRejectedWeight)) continue;
+    const toro::Constraint& k = g.constraints()[c];
+    out.push_back(DownWeightedLoopClosure{k.from, k.to, w[c], toro::constraintChi2(g, c)});
+  }
+  return out;
 }
 
 OptimizeResult Pipeline::finish(unsigned iterations) {
   OptimizeResult r;
   toro::FinishOptions o;
   if (iterations > 0) o.max_iterations = iterations;
+  o.robust = optimizerOptions().robust;
   if (!toro::cholmodAvailable()) o.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
   toro::PoseGraph graph = optimizer_.graph();
   try {
@@ -418,7 +473,8 @@ void Pipeline::clearGraph() {
     r.detail = "the graph was reset while it waited";
     refuseLoopClosure(r, msg);
   }
-  optimizer_ = toro::TreeOptimizer(optimizerOptions(options_));
+  robust_width_ = options_.robust.width;
+  optimizer_ = toro::TreeOptimizer(optimizerOptions());
   keyframer_.reset();
   last_odometry_.reset();
   odometry_history_.clear();
@@ -459,9 +515,12 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
   for (std::size_t c = 0; c < g.numConstraints(); ++c) {
     const toro::Constraint& k = g.constraints()[c];
     const bool lc = is_loop_closure_[c];
+    const double weight = optimizer_.weights()[c];
     s->edges.push_back(
-        SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0});
+        SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0, weight});
+    if (lc && weight < toro::kRejectedWeight) ++s->down_weighted_loop_closures;
   }
+  s->robust_width = options_.robust.enabled() ? robust_width_ : 0.0;
   for (const RejectedLoopClosure& r : rejected_)
     if (g.hasNode(r.constraint.from) && g.hasNode(r.constraint.to))
       s->rejected_edges.push_back(
@@ -488,6 +547,8 @@ PipelineStatus Pipeline::status() const {
   s.paused = paused_;
   s.counters = counters_;
   s.rejected = rejected_;
+  s.down_weighted = downWeighted();
+  s.robust_width = options_.robust.enabled() ? robust_width_ : 0.0;
   return s;
 }
 

@@ -107,7 +107,9 @@ bool Pipeline::readmitRejected() {
       ++it;
       continue;
     }
-    optimizer_.addConstraint(c);
+    toro::Constraint loop_closure = c;
+    loop_closure.kind = toro::ConstraintKind::kLoopClosure;  // sidecar-loaded ones come as kAuto
+    optimizer_.addConstraint(loop_closure);
     is_loop_closure_.push_back(true);
     ++counters_.loop_closures_applied;
     ++counters_.loop_closures_readmitted;
@@ -148,8 +150,8 @@ bool Pipeline::recheckLoopClosures() {
   for (std::size_t c = 0; c < g.numConstraints(); ++c)
     if (c != worst) without.addConstraint(g.constraints()[c]);
   const toro::Constraint removed = g.constraints()[worst];
-  replaceGraph(without);
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(worst));
+  replaceGraph(without);
   last_chi2_ = toro::g2oChi2(optimizer_.graph());
   --counters_.loop_closures_applied;
   ++counters_.loop_closures_rejected;

@@ -109,13 +109,13 @@ std::string Pipeline::loadGraph(const GraphFileRef& file) {
   if (!mismatch.empty()) return sidecarPath(path) + ": " + mismatch;
 
   clearGraph();
+  is_loop_closure_.assign(graph.numConstraints(), false);
+  for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;
   replaceGraph(graph);
   for (KeyframeRecord k : sidecar.keyframes) {
     if (options_.planar) k.odom_T_base = toro::projectToPlane(k.odom_T_base);  // as at input
     keyframes_.append(k);
   }
-  is_loop_closure_.assign(graph.numConstraints(), false);
-  for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;
   rejected_ = sidecar.rejected;
   const KeyframeRecord& newest = keyframes_.newest();
   // The sidecar does not keep odometry covariances: NaN marks the reference's as unknown, so the

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "toro_ros/core/robust_kernel.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 
 namespace toro_ros {
@@ -95,10 +96,15 @@ visualization_msgs::MarkerArray markersFromSnapshot(const Snapshot& snapshot, co
   Marker loops = baseMarker(map_frame, stamp, marker_ns::kLoopClosures, Marker::LINE_LIST);
   loops.scale.x = options.edge_width_m;
   loops.color = rgba(0.0f, 1.0f, 0.0f);
+  Marker down_weighted = baseMarker(map_frame, stamp, marker_ns::kDownWeightedLoopClosures, Marker::LINE_LIST);
+  down_weighted.scale.x = options.edge_width_m;
+  down_weighted.color = rgba(1.0f, 0.5f, 0.0f, 0.8f);
   for (const SnapshotEdge& e : snapshot.edges) {
     const geometry_msgs::Point a = point(snapshot.keyframes[e.from_index].map_T_base);
     const geometry_msgs::Point b = point(snapshot.keyframes[e.to_index].map_T_base);
-    if (e.loop_closure) {
+    if (e.loop_closure && e.weight < toro::kRejectedWeight) {
+      down_weighted.points.insert(down_weighted.points.end(), {a, b});
+    } else if (e.loop_closure) {
       const std_msgs::ColorRGBA c = residualColour(e.chi2, options.loop_closure_chi2_red);
       loops.points.insert(loops.points.end(), {a, b});
       loops.colors.insert(loops.colors.end(), {c, c});
@@ -113,7 +119,7 @@ visualization_msgs::MarkerArray markersFromSnapshot(const Snapshot& snapshot, co
     rejected.points.insert(rejected.points.end(), {point(snapshot.keyframes[e.from_index].map_T_base),
                                                    point(snapshot.keyframes[e.to_index].map_T_base)});
   // rviz rejects empty point lists with a warning; a marker with nothing to draw is deleted instead.
-  for (Marker* m : {&nodes, &odometry, &loops, &rejected}) {
+  for (Marker* m : {&nodes, &odometry, &loops, &down_weighted, &rejected}) {
     if (m->points.empty()) m->action = Marker::DELETE;
     out.markers.push_back(*m);
   }

@@ -35,10 +35,13 @@ TEST(Visualization, PathHasOnePoseAKeyframeWithItsStamp) {
 
 TEST(Visualization, MarkersHaveStableNamespacesAndResidualColours) {
   const auto a = markersFromSnapshot(snapshot(), "map", ros::Time(20), MarkerOptions{}, false);
-  ASSERT_EQ(a.markers.size(), 4u);  // with the (empty, so DELETE) rejected loop closures
+  ASSERT_EQ(a.markers.size(), 5u);  // with the (empty, so DELETE) rejected and down-weighted ones
   const Marker* rejected = find(a, marker_ns::kRejectedLoopClosures);
   ASSERT_TRUE(rejected);
   EXPECT_EQ(rejected->action, Marker::DELETE);
+  const Marker* down = find(a, marker_ns::kDownWeightedLoopClosures);
+  ASSERT_TRUE(down);
+  EXPECT_EQ(down->action, Marker::DELETE);
   const Marker* nodes = find(a, marker_ns::kNodes);
   const Marker* odom = find(a, marker_ns::kOdometryEdges);
   const Marker* loops = find(a, marker_ns::kLoopClosures);
@@ -74,9 +77,26 @@ TEST(Visualization, RejectedLoopClosuresHaveTheirOwnNamespaceAndColour) {
   EXPECT_EQ(find(a, marker_ns::kLoopClosures)->points.size(), 4u);  // accepted ones unchanged
 }
 
+TEST(Visualization, DownWeightedLoopClosuresAreDrawnApartInOrange) {
+  Snapshot s = snapshot();
+  s.edges[3].weight = 0.2;  // the loop closure 3 -> 0: robust weight below 0.5
+  const auto a = markersFromSnapshot(s, "map", ros::Time(20), MarkerOptions{}, false);
+  const Marker* down = find(a, marker_ns::kDownWeightedLoopClosures);
+  const Marker* loops = find(a, marker_ns::kLoopClosures);
+  ASSERT_TRUE(down && loops);
+  EXPECT_EQ(down->action, Marker::ADD);
+  ASSERT_EQ(down->points.size(), 2u);
+  EXPECT_DOUBLE_EQ(down->points[0].y, 6.0);  // keyframe 3
+  EXPECT_DOUBLE_EQ(down->points[1].y, 0.0);  // keyframe 0
+  EXPECT_FLOAT_EQ(down->color.r, 1.0f);
+  EXPECT_FLOAT_EQ(down->color.g, 0.5f);
+  EXPECT_FLOAT_EQ(down->color.b, 0.0f);
+  EXPECT_EQ(loops->points.size(), 2u);  // only the one with full weight stays among the accepted
+}
+
 TEST(Visualization, DeleteAllComesFirstAfterAReset) {
   const auto a = markersFromSnapshot(snapshot(), "map", ros::Time(20), MarkerOptions{}, true);
-  ASSERT_EQ(a.markers.size(), 5u);
+  ASSERT_EQ(a.markers.size(), 6u);
   EXPECT_EQ(a.markers[0].action, Marker::DELETEALL);
 }
 

@@ -38,6 +38,13 @@ double robustObjective(const PoseGraph& graph, const RobustOptions& robust);
 // Robust weight of every constraint at the current poses (1 for odometry and with `robust` off).
 std::vector<double> robustWeights(const PoseGraph& graph, const RobustOptions& robust);
 
+// The kernel width the accepted loop closures' residuals call for (RobustOptions::
+// adaptive_width_factor): that factor times the 99th percentile of the chi2 of the loop closures
+// accepted now (weight >= kRejectedWeight), when that is narrower than robust.width, else
+// robust.width: the width only ever narrows (for senders whose covariances are too large, whose
+// wrong loop closures then stand out), never widens (wrong ones that passed would carry it away).
+double adaptedRobustWidth(const PoseGraph& graph, const RobustOptions& robust);
+
 // Position RMSE (m) between the poses of `estimate` and `reference` (matched by node id; nodes
 // missing from either are skipped) after the rigid motion that best aligns the estimate onto the
 // reference (Horn/Umeyama without scale), so a different gauge costs nothing.  0 for < 1 node.

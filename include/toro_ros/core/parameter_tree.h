@@ -28,8 +28,10 @@ class ParameterTree {
   // or constraint `constraint_index`.  The result equals build() on the grown graph.  Nodes whose
   // parent changed are appended to `reparented` (if given) so their parameters can be re-derived.
   void addNode(const PoseGraph& graph, std::size_t node_index);
+  // With may_be_tree_edge false the constraint does not shape the tree (it becomes nobody's parent
+  // link) unless it joins two components; then the result equals build() on the graph without it.
   void addConstraint(const PoseGraph& graph, std::size_t constraint_index,
-                     std::vector<std::size_t>* reparented = nullptr);
+                     std::vector<std::size_t>* reparented = nullptr, bool may_be_tree_edge = true);
 
   std::size_t size() const { return parent_.size(); }
   std::size_t parent(std::size_t node) const { return parent_[node]; }

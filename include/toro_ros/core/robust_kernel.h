@@ -27,10 +27,28 @@ const char* robustKernelName(RobustKernel kernel);
 // Loop closures whose weight ends below this are reported as rejected (the convention).
 constexpr double kRejectedWeight = 0.5;
 
+// Default kernel width phi (chi2 units, g2o's e^T Omega e): wide enough for right loop closures
+// with honest covariances (chi-square with 3 or 6 degrees of freedom: 99.5 % below 1.83 widths)
+// and for the heavy tails of real data (largest right chi2 at the optimum of the shared datasets:
+// manhattan 13.2, intel_g2o-vertigo 7.0, CSAIL 2.3, kitti_00 1.8; bench/robust_results.md); the
+// adaptive width narrows it to the data (senders whose covariances are too large).
+constexpr double kDefaultRobustWidth = 10.0;
+// Default factor of the adaptive width over the 99th percentile of the accepted loop closures'
+// chi2 (metrics.h adaptedRobustWidth).  Why 10: the largest right loop closure's chi2 lies up to
+// 7.7 times above that percentile on the shared datasets (parking-garage; 2 or less elsewhere),
+// wrong ones 100 to 1e5 times above the median.
+constexpr double kDefaultAdaptiveWidthFactor = 10.0;
+
 struct RobustOptions {
   RobustKernel kernel = RobustKernel::kNone;
   // phi, in g2o chi2 units (see the header comment); > 0.
-  double width = 1.0;
+  double width = kDefaultRobustWidth;
+  // Once a solution is there, the width narrows to this multiple of the 99th percentile of the
+  // accepted loop closures' chi2 when that is narrower (metrics.h adaptedRobustWidth) and the
+  // solution is refined with it, so the kernel fits the real size of the residuals: a sender whose
+  // covariances are 1e4 too large (parking-garage.g2o) makes wrong loop closures look plausible
+  // to a fixed width.  0 keeps the width fixed.
+  double adaptive_width_factor = kDefaultAdaptiveWidthFactor;
   bool enabled() const { return kernel != RobustKernel::kNone; }
   // Empty when valid, else what is wrong.
   std::string validate() const;

@@ -46,7 +46,7 @@ SolverThreadSettings limitSolverThreads(int blas_threads);
 const char* linearSolverName(LinearSolverType type);
 
 // How often the finish runs again when a set-aside loop closure regained weight (robust only).
-constexpr std::size_t kMaxSetAsideRounds = 3;
+constexpr std::size_t kMaxSetAsideRounds = 4;
 
 struct FinishOptions {
   // Stop after this many iterations (accepted or rejected steps).
@@ -70,11 +70,12 @@ struct FinishOptions {
   // Robust loop closures (robust_kernel.h): the finish minimises sum rho(chi2) over loop closures
   // plus the plain chi2 of odometry, by iteratively reweighted Levenberg-Marquardt.  Off by default.
   RobustOptions robust;
-  // Robust loop closures whose weight at the start of the finish is below this are set aside: left
-  // out of the normal equations (a wrong loop closure between far-apart poses only adds fill-in to
-  // the factorisation, measured 10x slower with 1000 on sphere2500, and pulls with ~nothing).  If
-  // one regains this weight at the end, the finish runs again with it (at most
-  // kMaxSetAsideRounds times), so none is lost for good.  0 keeps all.
+  // Robust loop closures whose weight at the start of a finish round is below this are set aside:
+  // left out of the factorisation (a wrong loop closure between far-apart poses only adds fill-in to it,
+  // measured 10x slower with 1000 on sphere2500) but kept in the objective, the gradient and, by
+  // preconditioned conjugate gradients, in each step (finish_problem.h).  When one regains this
+  // weight, the finish starts a new round with it factorised (at most kMaxSetAsideRounds).
+  // 0 keeps all in the factorisation.
   double robust_set_aside_weight = 1e-3;
 
   // Empty when valid, otherwise what is wrong.
@@ -91,6 +92,7 @@ enum class FinishStop {
   kMaxIterations,
   kLambdaTooLarge,  // no step lowers chi2 any more (stalled, e.g. at the limit of precision)
   kNoConstraints,
+  kSetAsideRegained,  // internal: a round ended so the next one factorises regained loop closures
 };
 const char* finishStopName(FinishStop stop);
 
@@ -121,6 +123,7 @@ struct FinishReport {
   std::size_t repaired_information = 0;  // constraints whose information was not positive definite
   std::size_t set_aside = 0;  // robust loop closures left out in the last round (robust_set_aside_weight)
   std::size_t rounds = 1;     // finish runs (more than 1 when a set-aside loop closure regained weight)
+  std::size_t conjugate_gradient_iterations = 0;  // spent on set-aside loop closures
   double seconds = 0.0;
   double factorization_seconds = 0.0;  // of which: numeric factorisations and solves
   std::vector<FinishIteration> history;

@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "toro_ros/core/loop_closure_innovation.h"
 #include "toro_ros/core/parameter_tree.h"
 #include "toro_ros/core/pose_graph.h"
 #include "toro_ros/core/robust_kernel.h"
@@ -71,6 +72,10 @@ struct TreeOptimizerOptions {
   // (a new one's at its arrival), so a wrong one moves the map by a weighted fraction only.
   // Odometry (isLoopClosure() false) keeps weight 1.  Off (kNone) by default.
   RobustOptions robust;
+  // The chi2 the robust weights come from: the loop closure's leave-one-out innovation against its
+  // tree path (loop_closure_innovation.h: a right loop closure closing a long loop is judged
+  // against the drift the path allows) or, false, its plain chi2 e^T Omega e.
+  bool robust_by_innovation = true;
   // Constraints are visited in increasing level of their top node (root side first).
   // Returns an empty string when valid, else what is wrong.
   std::string validate() const;
@@ -112,9 +117,17 @@ class TreeOptimizer {
   // Forgets what counts as "new" for iterateAffected() without a full pass.
   void clearAffected();
 
+  // Constraint indices at a node, and a constraint's dense endpoints (for path computations).
+  const std::vector<std::size_t>& incident(std::size_t node) const { return incident_[node]; }
+  std::size_t fromIndex(std::size_t c) const { return from_index_[c]; }
+  std::size_t toIndex(std::size_t c) const { return to_index_[c]; }
+
   // Robust weight of each constraint (1 for odometry and when robust estimation is off), as used by
   // the last pass that visited it (or at its arrival), by constraint index.
   const std::vector<double>& weights() const { return robust_weight_; }
+  // The chi2 each robust loop closure was weighted by when it arrived (addConstraint; -1 for the
+  // others and for constraints given to setGraph), by constraint index.
+  const std::vector<double>& arrivalChi2() const { return arrival_chi2_; }
   // Whether constraint c is weighted robustly (a loop closure with options().robust enabled).
   bool isRobust(std::size_t c) const { return robust_[c] != 0; }
   // Recomputes the robust weights of all loop closures from the current poses (a full pass does
@@ -151,6 +164,9 @@ class TreeOptimizer {
   // Robust weights of the given constraints from the current poses; the preconditioner follows
   // (incrementally) when a weight changed by more than a tolerance.  Returns how many changed.
   std::size_t refreshWeights(const std::vector<std::size_t>& constraints);
+  // A robust constraint's weight (options_.robust_by_innovation: from its innovation, see the
+  // .cpp), and in `judged_chi2` the chi2 the kernel was applied to.
+  double innovationWeight(std::size_t c, double* judged_chi2);
 
   // Group dispatchers (tree_optimizer_update.cpp): each calls the template for the chosen group.
   void clearParameters();
@@ -234,6 +250,7 @@ class TreeOptimizer {
   std::vector<double> constraint_rotation_info_;
   std::vector<double> constraint_translation_info_;
   std::vector<double> robust_weight_;  // per constraint, 1 unless robust_
+  std::vector<double> arrival_chi2_;   // per constraint, see arrivalChi2()
   std::vector<double> preconditioned_weight_;  // the weight whose share the preconditioner holds
   std::vector<char> robust_;           // per constraint: a loop closure weighted robustly
   // Constraints with unmeasured axes move only along their measured ones: the projectors live in
@@ -253,6 +270,7 @@ class TreeOptimizer {
   std::vector<double> up_rotation_share_, down_rotation_share_;
   std::vector<double> up_translation_share_, down_translation_share_;
   std::vector<char> affected_mark_;
+  InnovationScratch innovation_scratch_;
 };
 
 }  // namespace toro

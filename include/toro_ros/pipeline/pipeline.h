@@ -16,6 +16,7 @@
 #include <nav_msgs/Odometry.h>
 
 #include "toro_ros/LoopClosure.h"
+#include "toro_ros/core/robust_kernel.h"
 #include "toro_ros/core/tree_optimizer.h"
 #include "toro_ros/pipeline/graph_file.h"
 #include "toro_ros/pipeline/keyframer.h"
@@ -86,6 +87,11 @@ struct PipelineOptions {
   // the quantile times this.  1 trusts the declared covariances; < 1 for senders known to declare
   // them too large (e.g. parking-garage.g2o, whose residuals are ~1e-4 of its declared ones).
   double loop_closure_gate_variance_factor = 1.0;
+  // Robust loop closures (core robust_kernel.h): each loop closure's weight in TORO's passes and in
+  // the finish comes from its residual, from the moment it arrives, so a wrong one does not bend
+  // the map; odometry stays Gaussian.  On (DCS) by default; kernel kNone turns it off.  The width
+  // adapts to the accepted loop closures' residuals after each full round (adaptive_width_factor).
+  toro::RobustOptions robust{toro::RobustKernel::kDcs};
   PersistenceOptions persistence;
   // Planar robots (a floor): every odometry pose and loop-closure measurement is projected onto
   // the plane at input (x, y and the heading kept; z, roll and pitch dropped; toro/core/planar.h),
@@ -106,6 +112,9 @@ struct OptimizeResult {
   int iterations = 0;
 };
 
+// "dcs" | "cauchy" | "huber" (| "none").
+std::string toString(toro::RobustKernel kernel);
+
 // Status for ~get_status and diagnostics.
 struct PipelineStatus {
   std::size_t keyframes = 0;
@@ -116,6 +125,10 @@ struct PipelineStatus {
   bool paused = false;
   PipelineCounters counters;
   std::vector<RejectedLoopClosure> rejected;
+  // Loop closures whose robust weight is now below toro::kRejectedWeight (they stay in the graph
+  // and regain weight when the map comes to agree with them), and the kernel width in use.
+  std::vector<DownWeightedLoopClosure> down_weighted;
+  double robust_width = 0.0;
 };
 
 class Pipeline {
@@ -193,8 +206,13 @@ class Pipeline {
   void runFullPass();
   void runAffectedPass();
   OptimizeResult finish(unsigned iterations);
-  // Makes `graph` (same nodes and constraints as now, other poses) the optimiser's graph.
+  // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints
+  // (it sets their kinds, so the robust weights apply to the loop closures only).
   void replaceGraph(const toro::PoseGraph& graph);
+  toro::TreeOptimizerOptions optimizerOptions() const;
+  // After a full round: the robust kernel's width follows the accepted loop closures' residuals.
+  void adaptRobustWidth();
+  std::vector<DownWeightedLoopClosure> downWeighted() const;
   // Gate (pipeline_gate.cpp): remember the state before a loop closure, test it after its pass.
   bool gateEnabled() const { return gate_threshold_ < std::numeric_limits<double>::infinity(); }
   void beginGate(const LoopClosure& msg);
@@ -231,6 +249,7 @@ class Pipeline {
   std::uint64_t epoch_ = 0;
   PipelineCounters counters_;
   double gate_threshold_;
+  double robust_width_;  // the robust kernel's width now (adapted after full rounds)
   // The optimiser as it was before the newest loop closure, until that one passed the gate.
   std::optional<toro::TreeOptimizer> before_gate_;
   std::size_t gate_constraint_ = 0;  // the candidate's constraint index

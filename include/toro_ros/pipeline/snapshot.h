@@ -42,6 +42,7 @@ struct SnapshotEdge {
   std::size_t to_index = 0;
   bool loop_closure = false;
   double chi2 = 0.0;  // g2o chi2 of this constraint at the corrected poses (loop closures only)
+  double weight = 1.0;  // robust weight (toro::TreeOptimizer::weights); 1 for odometry
 };
 
 // A loop closure the chi-square gate refused (kept for the graph file, the markers and ~get_status).
@@ -51,12 +52,22 @@ struct RejectedLoopClosure {
   double chi2 = 0.0;            // its g2o chi2 after its affected pass
 };
 
+// A loop closure the robust estimator weights below toro::kRejectedWeight now.
+struct DownWeightedLoopClosure {
+  toro::NodeId from = 0;
+  toro::NodeId to = 0;
+  double weight = 0.0;  // its robust weight
+  double chi2 = 0.0;    // its g2o chi2 at the corrected poses
+};
+
 struct Snapshot {
   std::uint64_t generation = 0;  // increases with every snapshot the pipeline makes
   std::uint64_t epoch = 0;       // increases with every reset/load: publishers clear old markers
   std::vector<SnapshotKeyframe> keyframes;
   std::vector<SnapshotEdge> edges;
   std::vector<SnapshotEdge> rejected_edges;  // loop closures the gate refused (chi2 when refused)
+  std::size_t down_weighted_loop_closures = 0;  // edges with loop_closure and weight < kRejectedWeight
+  double robust_width = 0.0;                    // the robust kernel's width (0: robust off)
   // map_T_odom = (corrected pose of the newest keyframe) * (its odometry pose)^-1; identity and
   // has_map_T_odom = false before the first keyframe.
   bool has_map_T_odom = false;

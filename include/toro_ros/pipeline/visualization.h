@@ -25,6 +25,8 @@ constexpr const char* kNodes = "keyframes";
 constexpr const char* kOdometryEdges = "odometry_edges";
 constexpr const char* kLoopClosures = "loop_closures";
 constexpr const char* kRejectedLoopClosures = "rejected_loop_closures";  // magenta, by the gate
+// Loop closures with a robust weight below toro::kRejectedWeight: orange, not in loop_closures.
+constexpr const char* kDownWeightedLoopClosures = "down_weighted_loop_closures";
 }  // namespace marker_ns
 
 nav_msgs::Path pathFromSnapshot(const Snapshot& snapshot, const std::string& map_frame,
