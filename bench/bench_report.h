@@ -202,6 +202,10 @@ constexpr double kPlanarSpeedupTarget = 2.5;
 
 inline void printPlanarComparison(const Settings& s, const std::map<std::string, ChildOutcome>& results,
                                   const std::vector<std::string>& names) {
+  std::cout << "Each file's timed runs through both groups interleaved (" << s.runs
+            << " pairs; 25 when one run takes less than 0.05 s), setup outside the timed region; per "
+               "iteration = median run / "
+            << s.iterations << ".\n\n";
   std::cout << "| dataset | nodes | constraints | 3D code: CPU per it. (ms) | SE(2): CPU per it. (ms) | "
                "ratio (CPU, medians) | ratio (CPU, fastest runs) | 3D code: wall per it. (ms) | SE(2): wall "
                "per it. (ms) | ratio (wall) | target >= "

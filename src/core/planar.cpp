@@ -26,7 +26,24 @@ Constraint projectToPlane(const Constraint& constraint) {
   return out;
 }
 
+namespace {
+
+// Whether projecting `graph` would change nothing (a 2D file as read): then it is copied as it is,
+// without validating every constraint again.
+bool projectionIsIdentity(const PoseGraph& graph) {
+  if (graph.dimension() != GraphDimension::k2D) return false;
+  for (const Node& n : graph.nodes())
+    if (!isExactlyPlanar(n.pose)) return false;
+  for (const Constraint& c : graph.constraints())
+    if (!isExactlyPlanar(c.measurement) || projectInformationToPlane(c.information) != c.information)
+      return false;
+  return true;
+}
+
+}  // namespace
+
 PoseGraph projectToPlane(const PoseGraph& graph) {
+  if (projectionIsIdentity(graph)) return graph;
   PoseGraph out;
   out.setDimension(GraphDimension::k2D);
   for (const Node& n : graph.nodes()) out.addNode(n.id, projectToPlane(n.pose));

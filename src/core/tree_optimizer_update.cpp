@@ -249,7 +249,7 @@ inline void TreeOptimizer::recomputePosesIn() {
 // the top node's frame are composed from the parameters; the rotation error is spread over them by
 // the rotational shares, the translation residual (after the rotation of the first end) by the
 // translational ones; then each parameter becomes the new pose of its node relative to the new
-// pose of its parent.  Moving and writing back run in one loop per branch.
+// pose of its parent (moveAndWriteBack).
 
 template <class G>
 inline void TreeOptimizer::updateConstraintIn(std::size_t c, double learning_rate) {
