@@ -4,8 +4,11 @@
 // value of REFERENCE.md (B).  Then a comparison of the sparse Cholesky back ends on the finish
 // alone.  Writes Markdown to stdout.
 //
-//   bench_finish [--datasets DIR] [--runs 5] [--only NAME] [--solver-threads N]
+//   bench_finish [--datasets DIR] [--runs 5] [--only NAME] [--solver-threads N] [--planar-comparison 1]
 // --solver-threads: as toro_optimize (default 1: limitSolverThreads(1); 0: runtime defaults).
+// --planar-comparison 1: instead of the cases above, every 2D file with a best known chi2 through
+// TORO-then-finish twice, with TORO in SE(2) (the default for 2D files) and with the 3D code
+// (issue 11: same chi2 after the finish).
 #include <time.h>
 
 #include <algorithm>
@@ -45,6 +48,7 @@ struct Case {
   double tolerance;       // relative
   double target_seconds;  // 0: none
   LinearSolverType solver = LinearSolverType::kCholmodSupernodal;
+  Parameterization toro_group = Parameterization::kFromGraph;
 };
 
 struct Outcome {
@@ -61,6 +65,7 @@ Outcome runCase(const std::string& dir, const Case& c, int runs) {
   options.mode = c.mode;
   options.initial_guess = c.guess;
   options.finish.linear_solver = c.solver;
+  options.toro.parameterization = c.toro_group;
   std::vector<double> wall, cpu, factorization;
   for (int r = 0; r < runs; ++r) {
     PoseGraph g = original;
@@ -87,10 +92,11 @@ void printRow(const Case& c, const Outcome& o) {
   const double rel = std::abs(o.chi2 - c.reference) / c.reference;
   const bool ok_value = rel <= c.tolerance;
   const bool ok_time = c.target_seconds <= 0.0 || o.wall <= c.target_seconds;
-  std::printf("| %s | %s | %s | %s | %zu | %zu | %.3f | %.3f | %.4f | %.4f | %.10g | %.1e %s | %s |\n",
-              c.file, optimizeModeName(c.mode), guessName(c.guess), linearSolverName(c.solver),
-              o.toro_iterations, o.finish_iterations, o.wall, o.cpu, o.factorization, o.read, o.chi2, rel,
-              ok_value ? "ok" : "MISSED", c.target_seconds > 0 ? (ok_time ? "ok" : "over") : "-");
+  std::printf("| %s | %s | %s | %s | %s | %zu | %zu | %.3f | %.3f | %.4f | %.4f | %.10g | %.1e %s | %s |\n",
+              c.file, optimizeModeName(c.mode), guessName(c.guess), parameterizationName(c.toro_group),
+              linearSolverName(c.solver), o.toro_iterations, o.finish_iterations, o.wall, o.cpu,
+              o.factorization, o.read, o.chi2, rel, ok_value ? "ok" : "MISSED",
+              c.target_seconds > 0 ? (ok_time ? "ok" : "over") : "-");
   std::fflush(stdout);
 }
 
@@ -101,6 +107,7 @@ int main(int argc, char** argv) {
   int runs = 5;
   std::string only;
   int solver_threads = 1;
+  bool planar_comparison = false;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     if (key == "--datasets")
@@ -111,6 +118,8 @@ int main(int argc, char** argv) {
       only = argv[i + 1];
     else if (key == "--solver-threads")
       solver_threads = std::atoi(argv[i + 1]);
+    else if (key == "--planar-comparison")
+      planar_comparison = std::atoi(argv[i + 1]) != 0;
     else {
       std::fprintf(stderr, "unknown option %s\n", key.c_str());
       return 2;
@@ -135,6 +144,27 @@ int main(int argc, char** argv) {
     cases.push_back({"sphere2500.g2o", kFinish, kFile, 727.150, 1e-4, 0.3, s});
     cases.push_back({"parking-garage.g2o", kFinish, kFile, 1.23869, 1e-4, 0.12, s});
   }
+  if (planar_comparison) {
+    // REFERENCE.md (B), best known chi2 of every 2D file; the tolerance of the cases above.
+    const std::vector<std::pair<const char*, double>> planar_files = {{"2d/CSAIL.g2o", 40.5551},
+                                                                      {"2d/MIT.g2o", 41.1633},
+                                                                      {"2d/ais2klinik.g2o", 172.816},
+                                                                      {"2d/city10000.g2o", 511.985},
+                                                                      {"2d/intel.g2o", 45.0047},
+                                                                      {"2d/intel_g2o-vertigo.g2o", 546.461},
+                                                                      {"2d/kitti_00.g2o", 98.322},
+                                                                      {"2d/kitti_02.g2o", 78.7643},
+                                                                      {"2d/kitti_05.g2o", 157.104},
+                                                                      {"2d/manhattan.g2o", 3549.04},
+                                                                      {"2d/manhattanOlson3500.g2o", 146.077}};
+    cases.clear();
+    for (const auto& [file, reference] : planar_files) {
+      for (Parameterization group : {Parameterization::kPlanar, Parameterization::kSpatial}) {
+        cases.push_back(
+            {file, kToroFinish, kChain, reference, 1e-4, 0.0, LinearSolverType::kCholmodSupernodal, group});
+      }
+    }
+  }
   std::string threads = "runtime defaults";
   if (solver_threads > 0) {
     const SolverThreadSettings set = limitSolverThreads(solver_threads);
@@ -146,9 +176,9 @@ int main(int argc, char** argv) {
               threads.c_str(),
               std::getenv("OPENBLAS_NUM_THREADS") ? std::getenv("OPENBLAS_NUM_THREADS") : "(unset)");
   std::printf(
-      "| file | mode | start | linear solver | TORO it. | finish it. | wall s | CPU s | factorise+solve "
-      "s/it. | read s | final chi2 | rel. diff | time target |\n");
-  std::printf("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n");
+      "| file | mode | start | TORO group | linear solver | TORO it. | finish it. | wall s | CPU s | "
+      "factorise+solve s/it. | read s | final chi2 | rel. diff | time target |\n");
+  std::printf("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n");
   for (const Case& c : cases) {
     if (!only.empty() && only != c.file) continue;
     const bool slow = std::string(c.file).find("bignoise") != std::string::npos;

@@ -197,6 +197,36 @@ inline std::vector<std::string> namesOfDimension(const std::map<std::string, Chi
   return out;
 }
 
+// Issue 11's target: TORO in SE(2) at least this many times faster per iteration than the 3D code.
+constexpr double kPlanarSpeedupTarget = 2.5;
+
+inline void printPlanarComparison(const Settings& s, const std::map<std::string, ChildOutcome>& results,
+                                  const std::vector<std::string>& names) {
+  std::cout << "Each file's timed runs through both groups interleaved (" << s.runs
+            << " pairs; 25 when one run takes less than 0.05 s), setup outside the timed region; per "
+               "iteration = median run / "
+            << s.iterations << ".\n\n";
+  std::cout << "| dataset | nodes | constraints | 3D code: CPU per it. (ms) | SE(2): CPU per it. (ms) | "
+               "ratio (CPU, medians) | ratio (CPU, fastest runs) | 3D code: wall per it. (ms) | SE(2): wall "
+               "per it. (ms) | ratio (wall) | target >= "
+            << kPlanarSpeedupTarget << " (CPU, medians) | chi2 after " << s.iterations
+            << ", 3D code | chi2 after " << s.iterations
+            << ", SE(2) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|\n";
+  for (const auto& name : names) {
+    const ChildOutcome& r = results.at(name);
+    if (!r.error.empty() || value(r.values, "cpu_ratio") == "—") continue;
+    const Values& v = r.values;
+    std::cout << "| " << name << " | " << value(v, "nodes") << " | " << value(v, "constraints") << " | "
+              << value(v, "spatial_cpu_per_iteration_ms") << " | " << value(v, "planar_cpu_per_iteration_ms")
+              << " | " << value(v, "cpu_ratio") << " | " << value(v, "cpu_ratio_best") << " | "
+              << value(v, "spatial_per_iteration_ms") << " | "
+              << value(v, "planar_per_iteration_ms") << " | " << value(v, "wall_ratio") << " | "
+              << (std::stod(value(v, "cpu_ratio")) >= kPlanarSpeedupTarget ? "yes" : "**no**") << " | "
+              << num(std::stod(value(v, "spatial_chi2_final")), 8) << " | "
+              << num(std::stod(value(v, "planar_chi2_final")), 8) << " |\n";
+  }
+}
+
 inline void reportDatasets(const Settings& s, const std::vector<std::string>& names,
                            const std::map<std::string, ChildOutcome>& results) {
   std::cout << "## Targets (issue 2)\n\n";
@@ -210,6 +240,10 @@ inline void reportDatasets(const Settings& s, const std::vector<std::string>& na
     printErrorTable(s, results, subset, "chi2", "best known chi2", true);
     std::cout << "\n## " << dim << " datasets: SE-Sync objective after k iterations\n\n";
     printErrorTable(s, results, subset, "sesync", "optimum f*", false);
+    if (dim == std::string("2D")) {
+      std::cout << "\n## 2D datasets: TORO in SE(2) against the 3D code on the same file (issue 11)\n\n";
+      printPlanarComparison(s, results, subset);
+    }
   }
 }
 

@@ -1,8 +1,10 @@
-// Benchmark of the TORO 3D optimiser core (issue 2): per dataset, time per iteration, time for N
+// Benchmark of the TORO optimiser core (issue 2): per dataset, time per iteration, time for N
 // iterations (median of several runs, default options, initial guess chained on the tree), g2o chi2
 // and SE-Sync objective at checkpoints (computed outside the timed region), peak memory; plus a
-// large synthetic graph.  Each dataset runs in its own child process so that its peak resident
-// memory (ru_maxrss from wait4) is its own.  Writes a Markdown report to stdout, progress to stderr.
+// large synthetic graph.  2D files run in SE(2) (the default for them) and, interleaved, through
+// the 3D code on the same file (issue 11: the planar mode's speed-up).  Each dataset runs in its own child
+// process so that its peak resident memory (ru_maxrss from wait4) is its own.  Writes a Markdown report to
+// stdout, progress to stderr.
 //
 //   bench_toro [--datasets DIR] [--runs 5] [--iterations 100] [--checkpoints 10,50,100]
 //              [--only NAME[,NAME...]] [--synthetic-nodes 100000] [--synthetic-constraints 200000]
@@ -173,16 +175,69 @@ void measureCheckpoints(const toro::PoseGraph& graph, const Settings& s, Values&
   }
 }
 
+// A 2D file through TORO in SE(2) and through the 3D code (Parameterization::kSpatial), timed runs
+// of the two interleaved (first one, then the other, by turns) so that both see the same load; the
+// setup is outside the timed region.  Small files get more runs: a run of a few milliseconds is at
+// the mercy of one context switch.
+struct GroupRuns {
+  toro::Parameterization group;
+  std::vector<double> iterate_s, cpu_iterate_s, final_chi2;
+  void run(const toro::PoseGraph& graph, int iterations) {
+    toro::TreeOptimizerOptions options;
+    options.parameterization = group;
+    toro::TreeOptimizer optimizer(options);
+    optimizer.setGraph(graph, toro::InitialGuess::kChainOnTree);
+    const double c0 = cpuSeconds();
+    const auto t0 = Clock::now();
+    for (int k = 0; k < iterations; ++k) optimizer.iterate();
+    iterate_s.push_back(secondsBetween(t0, Clock::now()));
+    cpu_iterate_s.push_back(cpuSeconds() - c0);
+    final_chi2.push_back(toro::g2oChi2(optimizer.graph()));
+  }
+};
+
+// Runs of at least this much time each are enough at s.runs; shorter ones are repeated up to
+// kSmallFileRuns times.
+constexpr double kLongRunSeconds = 0.05;
+constexpr int kSmallFileRuns = 25;
+
+void comparePlanarWith3D(const toro::PoseGraph& graph, const Settings& s, double typical_run_s, Values& out) {
+  GroupRuns planar{toro::Parameterization::kPlanar, {}, {}, {}};
+  GroupRuns spatial{toro::Parameterization::kSpatial, {}, {}, {}};
+  const int runs = typical_run_s >= kLongRunSeconds ? s.runs : std::max(s.runs, kSmallFileRuns);
+  for (int run = 0; run < runs; ++run) {
+    GroupRuns& first = run % 2 == 0 ? planar : spatial;
+    GroupRuns& second = run % 2 == 0 ? spatial : planar;
+    first.run(graph, s.iterations);
+    second.run(graph, s.iterations);
+  }
+  const auto fastest = [](const std::vector<double>& v) { return *std::min_element(v.begin(), v.end()); };
+  const double per = 1000.0 / s.iterations;
+  out["comparison_runs"] = std::to_string(runs);
+  out["planar_per_iteration_ms"] = num(per * median(planar.iterate_s));
+  out["planar_cpu_per_iteration_ms"] = num(per * median(planar.cpu_iterate_s));
+  out["spatial_per_iteration_ms"] = num(per * median(spatial.iterate_s));
+  out["spatial_cpu_per_iteration_ms"] = num(per * median(spatial.cpu_iterate_s));
+  out["cpu_ratio"] = num(median(spatial.cpu_iterate_s) / median(planar.cpu_iterate_s), 3);
+  // Under load the fastest run of each is the least disturbed one.
+  out["cpu_ratio_best"] = num(fastest(spatial.cpu_iterate_s) / fastest(planar.cpu_iterate_s), 3);
+  out["wall_ratio"] = num(median(spatial.iterate_s) / median(planar.iterate_s), 3);
+  out["planar_chi2_final"] = num(planar.final_chi2[0], 10);
+  out["spatial_chi2_final"] = num(spatial.final_chi2[0], 10);
+}
+
 int runDatasetChild(const Settings& s) {
   std::vector<double> read_s, setup_s, iterate_s, whole_s, cpu_iterate_s, cpu_whole_s, final_chi2;
   toro::PoseGraph graph;
+  bool planar = false;
   for (int run = 0; run < s.runs; ++run) {
     const double c0 = cpuSeconds();
     const auto t0 = Clock::now();
     graph = toro::readGraph(s.child_dataset);
     const auto t1 = Clock::now();
-    toro::TreeOptimizer optimizer;
+    toro::TreeOptimizer optimizer;  // default options: SE(2) for a 2D file
     optimizer.setGraph(graph, toro::InitialGuess::kChainOnTree);
+    planar = optimizer.planar();
     const auto t2 = Clock::now();
     const double c2 = cpuSeconds();
     for (int k = 0; k < s.iterations; ++k) optimizer.iterate();
@@ -197,6 +252,7 @@ int runDatasetChild(const Settings& s) {
     final_chi2.push_back(toro::g2oChi2(optimizer.graph()));  // outside the timed region
   }
   Values out;
+  if (planar) comparePlanarWith3D(graph, s, median(iterate_s), out);
   out["dimension"] = graph.dimension() == toro::GraphDimension::k2D ? "2D" : "3D";
   out["nodes"] = std::to_string(graph.numNodes());
   out["constraints"] = std::to_string(graph.numConstraints());

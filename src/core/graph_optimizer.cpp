@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/planar.h"
 
 namespace toro {
 
@@ -93,6 +94,9 @@ OptimizeReport optimizeGraph(PoseGraph& graph, const OptimizeOptions& options,
                              const OptimizeCallback& callback) {
   const std::string problem = options.validate();
   if (!problem.empty()) throw std::invalid_argument("OptimizeOptions: " + problem);
+  // A planar TORO phase on a 3D graph: the whole run (finish, metrics, result) is the projection's.
+  if (options.toro.parameterization == Parameterization::kPlanar && graph.dimension() != GraphDimension::k2D)
+    graph = projectToPlane(graph);
   FinishOptions finish_options = options.finish;
   finish_options.robust = options.robust;
   TreeOptimizerOptions toro_options = options.toro;

@@ -183,6 +183,15 @@ std::size_t ParameterTree::path(std::size_t a, std::size_t b, std::vector<std::s
                                 std::vector<std::size_t>& down) const {
   up.clear();
   down.clear();
+  // The usual constraint (odometry) joins a node and its parent: a one-node path.
+  if (parent_[a] == b) {
+    up.push_back(a);
+    return b;
+  }
+  if (parent_[b] == a) {
+    down.push_back(b);
+    return a;
+  }
   while (level_[a] > level_[b]) {
     up.push_back(a);
     a = parent_[a];

@@ -5,9 +5,8 @@
 #include <deque>
 #include <stdexcept>
 
-#include "toro_ros/core/block_stiffness.h"
-#include "toro_ros/core/finish_residuals.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/planar.h"
 
 namespace toro {
 
@@ -21,14 +20,19 @@ constexpr double kUnconstrained = 1e300;
 // preconditioner only needs to be roughly right; updating it walks the constraint's path).
 constexpr double kPreconditionerWeightTolerance = 0.1;
 
-// Fraction of a constraint's error removed by one update: the learning rate times the constraint's
-// information over the stiffness of its path (Olson's preconditioned step, summed over the path),
-// never more than the whole error.
-double stepFraction(double learning_rate, double info, double weight_sum) {
-  return std::min(1.0, learning_rate * info * weight_sum);
-}
-
 }  // namespace
+
+const char* parameterizationName(Parameterization p) {
+  switch (p) {
+    case Parameterization::kFromGraph:
+      return "from-graph";
+    case Parameterization::kPlanar:
+      return "planar";
+    case Parameterization::kSpatial:
+      return "3d";
+  }
+  return "unknown";
+}
 
 std::string TreeOptimizerOptions::validate() const {
   if (!(gamma > 0.0) || !std::isfinite(gamma)) return "gamma must be a positive finite number";
@@ -42,10 +46,23 @@ TreeOptimizer::TreeOptimizer(const TreeOptimizerOptions& options) : options_(opt
   const std::string error = options_.validate();
   if (!error.empty()) throw std::invalid_argument("TreeOptimizerOptions: " + error);
   translation_rate_factor_ = options_.gamma / options_.translation_gamma;
+  planar_ = options_.parameterization == Parameterization::kPlanar;
+  if (planar_) graph_.setDimension(GraphDimension::k2D);
+}
+
+void TreeOptimizer::resetGraph(const PoseGraph& graph) {
+  planar_ =
+      options_.parameterization == Parameterization::kPlanar ||
+      (options_.parameterization == Parameterization::kFromGraph && graph.dimension() == GraphDimension::k2D);
+  if (planar_) {
+    graph_ = projectToPlane(graph);
+  } else {
+    graph_ = graph;
+  }
 }
 
 void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
-  graph_ = graph;
+  resetGraph(graph);
   tree_.build(graph_);
   const std::size_t n = graph_.numNodes();
   incident_.assign(n, {});
@@ -61,16 +78,15 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   preconditioned_weight_.clear();
   robust_.clear();
   measured_axes_index_.clear();
-  measured_axes_.clear();
+  clearParameters();
   for (std::size_t c = 0; c < graph_.numConstraints(); ++c) registerConstraint(c);
   rotation_weight_.assign(n, 0.0);
   translation_weight_.assign(n, 0.0);
-  inverse_rotation_weight_.assign(n, kUnconstrained);
-  inverse_translation_weight_.assign(n, kUnconstrained);
+  inverse_weight_.assign(n, InverseStiffness{kUnconstrained, kUnconstrained});
   affected_mark_.assign(graph_.numConstraints(), 0);
   top_level_.assign(graph_.numConstraints(), 0);  // per constraint, like the vectors above
   topological_order_ = tree_.topologicalOrder();
-  parameters_.assign(n, Pose3());
+  for (std::size_t v = 0; v < n; ++v) appendParameter(Pose3());
   if (guess == InitialGuess::kFromGraph) {
     parametersFromPoses();
   } else if (guess == InitialGuess::kChainOdometry) {
@@ -92,24 +108,13 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
   to_index_.push_back(graph_.indexOf(k.to));
   incident_[from_index_.back()].push_back(c);
   incident_[to_index_.back()].push_back(c);
-  const BlockStiffness translation = blockStiffness(k.information.topLeftCorner<3, 3>());
-  const BlockStiffness rotation = blockStiffness(k.information.bottomRightCorner<3, 3>());
-  base_translation_info_.push_back(translation.weight);
-  base_rotation_info_.push_back(rotation.weight);
-  constraint_translation_info_.push_back(translation.weight);
-  constraint_rotation_info_.push_back(rotation.weight);
   robust_weight_.push_back(1.0);
   in_preconditioner_.push_back(0);
   arrival_chi2_.push_back(-1.0);
   preconditioned_weight_.push_back(1.0);
   robust_.push_back(options_.robust.enabled() && isLoopClosure(k) ? 1 : 0);
-  if (translation.all_axes_measured && rotation.all_axes_measured) {
-    measured_axes_index_.push_back(-1);
-  } else {
-    measured_axes_index_.push_back(static_cast<int>(measured_axes_.size()));
-    measured_axes_.push_back(MeasuredAxes{translation.measured_projection, rotation.measured_projection,
-                                          !translation.all_axes_measured, !rotation.all_axes_measured});
-  }
+  // Stiffness (base_*, constraint_*), the measurement and measured axes in the group.
+  registerGroupConstraint(c);
 }
 
 void TreeOptimizer::setWeight(std::size_t c, double weight) {
@@ -124,8 +129,8 @@ void TreeOptimizer::adjustPreconditioner(std::size_t c, double rotation_delta, d
     for (std::size_t v : *branch) {
       rotation_weight_[v] = std::max(0.0, rotation_weight_[v] + rotation_delta);
       translation_weight_[v] = std::max(0.0, translation_weight_[v] + translation_delta);
-      inverse_rotation_weight_[v] = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
-      inverse_translation_weight_[v] =
+      inverse_weight_[v].rotation = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
+      inverse_weight_[v].translation =
           translation_weight_[v] > 0.0 ? 1.0 / translation_weight_[v] : kUnconstrained;
     }
   }
@@ -179,27 +184,6 @@ std::size_t TreeOptimizer::refreshWeights() {
   return refreshWeights(all);
 }
 
-void TreeOptimizer::chainInitialGuess() {
-  for (std::size_t v : topological_order_) {
-    const std::size_t p = tree_.parent(v);
-    if (p == kNone) {
-      parameters_[v] = graph_.node(v).pose;  // a root keeps its given pose: it fixes the gauge
-      continue;
-    }
-    // The first constraint (in graph order) between the node and its parent defines the guess.
-    for (std::size_t c : incident_[v]) {
-      if (from_index_[c] == p) {
-        parameters_[v] = graph_.constraints()[c].measurement;
-        break;
-      }
-      if (to_index_[c] == p) {
-        parameters_[v] = graph_.constraints()[c].measurement.inverse();
-        break;
-      }
-    }
-  }
-}
-
 void TreeOptimizer::chainOdometryGuess() {
   const std::size_t n = graph_.numNodes();
   std::vector<char> placed(n, 0);
@@ -245,20 +229,6 @@ void TreeOptimizer::chainOdometryGuess() {
   }
 }
 
-void TreeOptimizer::parametersFromPoses() {
-  for (std::size_t v = 0; v < graph_.numNodes(); ++v) {
-    const std::size_t p = tree_.parent(v);
-    parameters_[v] = p == kNone ? graph_.node(v).pose : relativePose(graph_.node(p).pose, graph_.node(v).pose);
-  }
-}
-
-void TreeOptimizer::recomputePoses() {
-  for (std::size_t v : topological_order_) {
-    const std::size_t p = tree_.parent(v);
-    graph_.setPoseAt(v, p == kNone ? parameters_[v] : graph_.node(p).pose * parameters_[v]);
-  }
-}
-
 void TreeOptimizer::addToPreconditioner(std::size_t c) {
   top_level_[c] = tree_.level(tree_.path(from_index_[c], to_index_[c], up_, down_));
   preconditioned_weight_[c] = robust_weight_[c];
@@ -267,8 +237,8 @@ void TreeOptimizer::addToPreconditioner(std::size_t c) {
     for (std::size_t v : *branch) {
       rotation_weight_[v] += constraint_rotation_info_[c];
       translation_weight_[v] += constraint_translation_info_[c];
-      inverse_rotation_weight_[v] = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
-      inverse_translation_weight_[v] =
+      inverse_weight_[v].rotation = rotation_weight_[v] > 0.0 ? 1.0 / rotation_weight_[v] : kUnconstrained;
+      inverse_weight_[v].translation =
           translation_weight_[v] > 0.0 ? 1.0 / translation_weight_[v] : kUnconstrained;
     }
   }
@@ -277,8 +247,7 @@ void TreeOptimizer::addToPreconditioner(std::size_t c) {
 void TreeOptimizer::refreshStructure() {
   std::fill(rotation_weight_.begin(), rotation_weight_.end(), 0.0);
   std::fill(translation_weight_.begin(), translation_weight_.end(), 0.0);
-  std::fill(inverse_rotation_weight_.begin(), inverse_rotation_weight_.end(), kUnconstrained);
-  std::fill(inverse_translation_weight_.begin(), inverse_translation_weight_.end(), kUnconstrained);
+  std::fill(inverse_weight_.begin(), inverse_weight_.end(), InverseStiffness{kUnconstrained, kUnconstrained});
   top_level_.assign(graph_.numConstraints(), 0);
   order_.resize(graph_.numConstraints());
   for (std::size_t c = 0; c < graph_.numConstraints(); ++c) {
@@ -301,11 +270,6 @@ IterationStats TreeOptimizer::iterate() {
   return IterationStats{iteration_, order_.size(), learning_rate};
 }
 
-void TreeOptimizer::runPass(const std::vector<std::size_t>& constraints, double learning_rate) {
-  for (std::size_t c : constraints) updateConstraint(c, learning_rate);
-  recomputePoses();
-}
-
 void TreeOptimizer::applyUpdate(std::size_t constraint_index, double learning_rate) {
   if (constraint_index >= graph_.numConstraints()) {
     throw std::out_of_range("TreeOptimizer::applyUpdate: no constraint " + std::to_string(constraint_index));
@@ -315,176 +279,20 @@ void TreeOptimizer::applyUpdate(std::size_t constraint_index, double learning_ra
   recomputePoses();
 }
 
-void TreeOptimizer::updateConstraint(std::size_t c, double learning_rate) {
-  // A loop closure whose robust weight vanished (infinite residual) has nothing to say.
-  if (!(constraint_rotation_info_[c] > 0.0) && !(constraint_translation_info_[c] > 0.0)) return;
-  top_ = tree_.path(from_index_[c], to_index_[c], up_, down_);
-  if (top_ == kNone) return;  // ends in different trees: cannot happen for a constraint of the graph
-  // Poses of the path nodes in the top node's frame; the top node itself is the identity there.
-  up_poses_.resize(up_.size());
-  down_poses_.resize(down_.size());
-  for (std::size_t i = up_.size(); i-- > 0;) {
-    up_poses_[i] = i + 1 < up_.size() ? up_poses_[i + 1] * parameters_[up_[i]] : parameters_[up_[i]];
-  }
-  for (std::size_t i = down_.size(); i-- > 0;) {
-    down_poses_[i] = i + 1 < down_.size() ? down_poses_[i + 1] * parameters_[down_[i]] : parameters_[down_[i]];
-  }
-  if (options_.rotation_update == RotationUpdate::kSlerp) {
-    distributeRotation(c, learning_rate);
-  } else {
-    distributeRotationNaively(c, learning_rate);
-  }
-  distributeTranslation(c, learning_rate);
-  writeBackParameters();
-}
-
-namespace {
-
-// Fills the signed share of the correction that each path node takes: moving along the path from
-// the constraint's first end (share -u_top) over the top (share 0) to its second end (share
-// 1 - u_top), every node's share grows by its joint's weight / total weight.  A node's weight is
-// the inverse of its stiffness (the preconditioner), capped by the inverse of this constraint's own
-// information, which the stiffness always includes when it is up to date.
-double computeShares(const std::vector<std::size_t>& up, const std::vector<std::size_t>& down,
-                     const std::vector<double>& inverse_stiffness, double own_information,
-                     std::vector<double>& up_share, std::vector<double>& down_share) {
-  up_share.resize(up.size());
-  down_share.resize(down.size());
-  const double cap = 1.0 / own_information;
-  double up_total = 0.0;
-  for (std::size_t i = up.size(); i-- > 0;) {
-    up_total += std::min(inverse_stiffness[up[i]], cap);
-    up_share[i] = up_total;
-  }
-  double down_total = 0.0;
-  for (std::size_t i = down.size(); i-- > 0;) {
-    down_total += std::min(inverse_stiffness[down[i]], cap);
-    down_share[i] = down_total;
-  }
-  const double total = up_total + down_total;
-  const double scale = 1.0 / total;
-  for (double& s : up_share) s *= -scale;
-  for (double& s : down_share) s *= scale;
-  return total;
-}
-
-}  // namespace
-
-void TreeOptimizer::distributeRotation(std::size_t c, double learning_rate) {
-  const Constraint& k = graph_.constraints()[c];
-  const Quaternion& qa = up_.empty() ? Quaternion::Identity() : up_poses_[0].rotation();
-  const Quaternion& qb = down_.empty() ? Quaternion::Identity() : down_poses_[0].rotation();
-  // Rotation that, applied on the left (in the top frame), takes b's orientation to a * Z.
-  Vector3 error = rotationVectorFromQuaternion(qa * k.measurement.rotation() * qb.conjugate());
-  const double info = constraint_rotation_info_[c];
-  if (!(info > 0.0)) return;
-  const int axes = measured_axes_index_[c];
-  if (axes >= 0 && measured_axes_[axes].rotation_partial) {
-    // The error in the top frame is R v for the constraint-frame error v, R = rotation of a * Z.
-    const Matrix3 r = (qa * k.measurement.rotation()).toRotationMatrix();
-    error = r * (measured_axes_[axes].rotation * (r.transpose() * error));
-  }
-  const double weight_sum = computeShares(up_, down_, inverse_rotation_weight_, info, up_share_, down_share_);
-  const double fraction = stepFraction(learning_rate, info, weight_sum);
-  // All partial corrections share one axis, so they commute and the two ends end up exactly
-  // `fraction` of the error apart; each parameter then absorbs the increment between its parent's
-  // correction and its own, conjugated into its parent's frame when written back (Eq. 19).
-  for (std::size_t i = 0; i < up_.size(); ++i) {
-    const Quaternion s = quaternionFromRotationVector(up_share_[i] * fraction * error);
-    up_poses_[i].setRotationUnchecked(s * up_poses_[i].rotation());
-  }
-  for (std::size_t i = 0; i < down_.size(); ++i) {
-    const Quaternion s = quaternionFromRotationVector(down_share_[i] * fraction * error);
-    down_poses_[i].setRotationUnchecked(s * down_poses_[i].rotation());
-  }
-}
-
-void TreeOptimizer::distributeRotationNaively(std::size_t c, double learning_rate) {
-  // The update the paper warns against (Fig. 2): add equal shares of the roll/pitch/yaw error to
-  // every parameter as if rotations commuted.  Kept for the benchmark and the test that shows it fails.
-  const Constraint& k = graph_.constraints()[c];
-  const Quaternion& qa = up_.empty() ? Quaternion::Identity() : up_poses_[0].rotation();
-  const Quaternion& qb = down_.empty() ? Quaternion::Identity() : down_poses_[0].rotation();
-  const Vector3 current = Pose3(qa.conjugate() * qb, Vector3::Zero()).rollPitchYaw();
-  const Vector3 wanted = k.measurement.rollPitchYaw();
-  Vector3 error;
-  for (int i = 0; i < 3; ++i) error[i] = toro::wrapAngle(wanted[i] - current[i]);
-  const double info = constraint_rotation_info_[c];
-  if (!(info > 0.0)) return;
-  const double weight_sum = computeShares(up_, down_, inverse_rotation_weight_, info, up_share_, down_share_);
-  const double fraction = stepFraction(learning_rate, info, weight_sum);
-  // Each joint's own share is the difference of consecutive cumulative shares.
-  const auto adjust = [&](const std::vector<std::size_t>& branch, const std::vector<double>& share,
-                          std::vector<Pose3>& poses, double sign) {
-    Quaternion above = Quaternion::Identity();
-    for (std::size_t i = branch.size(); i-- > 0;) {
-      const double own = std::abs(share[i]) - (i + 1 < branch.size() ? std::abs(share[i + 1]) : 0.0);
-      const Vector3 rpy = parameters_[branch[i]].rollPitchYaw() + sign * own * fraction * error;
-      const Quaternion q = Pose3::fromRollPitchYaw(0, 0, 0, rpy.x(), rpy.y(), rpy.z()).rotation();
-      above = (above * q).normalized();
-      poses[i].setRotationUnchecked(above);
-    }
-  };
-  adjust(up_, up_share_, up_poses_, -1.0);
-  adjust(down_, down_share_, down_poses_, 1.0);
-}
-
-void TreeOptimizer::distributeTranslation(std::size_t c, double learning_rate) {
-  const Constraint& k = graph_.constraints()[c];
-  const Pose3 top_T_a = up_.empty() ? Pose3() : up_poses_[0];
-  const Vector3 b = down_.empty() ? Vector3::Zero() : down_poses_[0].translation();
-  Vector3 residual = top_T_a * k.measurement.translation() - b;
-  const double info = constraint_translation_info_[c];
-  if (!(info > 0.0)) return;
-  const int axes = measured_axes_index_[c];
-  if (axes >= 0 && measured_axes_[axes].translation_partial) {
-    const Matrix3 r = (top_T_a.rotation() * k.measurement.rotation()).toRotationMatrix();
-    residual = r * (measured_axes_[axes].translation * (r.transpose() * residual));
-  }
-  const double weight_sum = computeShares(up_, down_, inverse_translation_weight_, info, up_share_, down_share_);
-  const double fraction = stepFraction(learning_rate * translation_rate_factor_, info, weight_sum);
-  for (std::size_t i = 0; i < up_.size(); ++i) {
-    up_poses_[i].setTranslation(up_poses_[i].translation() + (up_share_[i] * fraction) * residual);
-  }
-  for (std::size_t i = 0; i < down_.size(); ++i) {
-    down_poses_[i].setTranslation(down_poses_[i].translation() + (down_share_[i] * fraction) * residual);
-  }
-}
-
-void TreeOptimizer::writeBackParameters() {
-  // New parameter = (new pose of the parent)^-1 * (new pose), both in the top frame.
-  const auto write = [&](const std::vector<std::size_t>& branch, const std::vector<Pose3>& poses) {
-    for (std::size_t i = 0; i < branch.size(); ++i) {
-      Pose3& parameter = parameters_[branch[i]];
-      if (i + 1 == branch.size()) {
-        parameter = poses[i];  // the parent is the top node: the identity in its own frame
-      } else {
-        const Quaternion parent_inverse = poses[i + 1].rotation().conjugate();
-        parameter.setRotationUnchecked(parent_inverse * poses[i].rotation());
-        parameter.setTranslation(parent_inverse * (poses[i].translation() - poses[i + 1].translation()));
-      }
-      parameter.renormalize();
-    }
-  };
-  write(up_, up_poses_);
-  write(down_, down_poses_);
-}
-
 void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
-  graph_.addNode(id, pose);
+  graph_.addNode(id, planar_ ? projectToPlane(pose) : pose);
   const std::size_t v = graph_.numNodes() - 1;
   tree_.addNode(graph_, v);
-  parameters_.push_back(pose);
+  appendParameter(graph_.node(v).pose);
   incident_.emplace_back();
   rotation_weight_.push_back(0.0);
   translation_weight_.push_back(0.0);
-  inverse_rotation_weight_.push_back(kUnconstrained);
-  inverse_translation_weight_.push_back(kUnconstrained);
+  inverse_weight_.push_back(InverseStiffness{kUnconstrained, kUnconstrained});
   topological_order_.push_back(v);
 }
 
 std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
-  const std::size_t c = graph_.addConstraint(constraint);
+  const std::size_t c = graph_.addConstraint(planar_ ? projectToPlane(constraint) : constraint);
   registerConstraint(c);
   // A new loop closure is weighted before any pass moves the map for it, against the tree as it
   // was before it arrived.
@@ -497,8 +305,7 @@ std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
   top_level_.push_back(0);
   bool tree_reshaped = false;
   for (std::size_t v : reparented) {
-    const std::size_t p = tree_.parent(v);
-    parameters_[v] = p == kNone ? graph_.node(v).pose : relativePose(graph_.node(p).pose, graph_.node(v).pose);
+    parameterFromPoses(v);
     // A node attached by its very first constraint (a new keyframe) changes no other path; any
     // other re-parenting changes the paths (top nodes, stiffness) of constraints through it.
     if (!(reparented.size() == 1 && tree_.children(v).empty() && incident_[v].size() == 1)) tree_reshaped = true;

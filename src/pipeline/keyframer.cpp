@@ -194,7 +194,16 @@ std::string Keyframer::ruleDescription() const {
   return out;
 }
 
-InformationResult Keyframer::stepInformation(const OdometrySample& older, const OdometrySample& newer) const {
+InformationResult Keyframer::stepInformation(const OdometrySample& older_sample,
+                                             const OdometrySample& newer_sample) const {
+  // Planar mode reads only the x, y, yaw rows: whatever a sender puts on z, roll and pitch (0, 1e6,
+  // correlations) then neither makes a step unusable nor leaks into the plane.
+  OdometrySample older = older_sample;
+  OdometrySample newer = newer_sample;
+  if (options_.planar) {
+    older.covariance = planarCovariance(older.covariance);
+    newer.covariance = planarCovariance(newer.covariance);
+  }
   InformationResult out;
   switch (effectiveMode()) {
     case OdometryCovarianceMode::kDifference:

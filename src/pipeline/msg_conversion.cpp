@@ -3,6 +3,9 @@
 #include <cmath>
 #include <cstdio>
 
+#include "toro_ros/core/planar.h"
+#include "toro_ros/core/pose_graph.h"
+
 namespace toro_ros {
 
 namespace {
@@ -63,6 +66,22 @@ toro::Matrix6 covarianceMatrix(const Covariance6& covariance) {
 InformationResult informationFromCovariance(const Covariance6& covariance, const DefaultStddev& defaults,
                                             double unmeasured_variance) {
   return informationFromCovariance(covarianceMatrix(covariance), defaults, unmeasured_variance);
+}
+
+toro::Pose3 planarPoseFromMsg(const geometry_msgs::Pose& msg) {
+  return toro::projectToPlane(poseFromMsg(msg));
+}
+
+toro::Matrix6 planarCovariance(const toro::Matrix6& covariance) {
+  constexpr int kPlanar[3] = {0, 1, 5};      // x, y, yaw in geometry_msgs order
+  constexpr int kOutOfPlane[3] = {2, 3, 4};  // z, roll, pitch
+  toro::Matrix6 out = toro::Matrix6::Zero();
+  for (int i : kPlanar)
+    for (int j : kPlanar) out(i, j) = covariance(i, j);
+  // A non-finite planar block stays non-finite (and is refused); an all-zero one stays zero.
+  const double scale = (std::abs(out(0, 0)) + std::abs(out(1, 1)) + std::abs(out(5, 5))) / 3.0;
+  for (int k : kOutOfPlane) out(k, k) = scale;
+  return out;
 }
 
 std::string validateOdometry(const nav_msgs::Odometry& msg) {

@@ -37,6 +37,11 @@ double timed(F&& f) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
+KeyframerOptions keyframerOptions(const PipelineOptions& o) {
+  KeyframerOptions out = o.keyframer;
+  out.planar = o.planar;
+  return out;
+}
 
 std::string describe(const LoopClosure& msg) {
   if (msg.id_from >= 0 && msg.id_to >= 0)
@@ -97,7 +102,7 @@ Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn, InfoSink in
       warn_(std::move(warn)),
       info_(std::move(info)),
       optimizer_(),
-      keyframer_(options.keyframer),
+      keyframer_(keyframerOptions(options)),
       matcher_(options.matcher),
       odometry_history_(options.odometry_history_sec),
       last_chi2_(kNaN),
@@ -105,11 +110,12 @@ Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn, InfoSink in
   const std::string error = options.validate();
   if (!error.empty()) throw std::invalid_argument("invalid pipeline options: " + error);
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
-  // A loop closure's residual has 6 components (translation and rotation).
-  gate_threshold_ = options.loop_closure_gate_confidence > 0
-                        ? toro::chiSquareQuantile(options.loop_closure_gate_confidence, 6) *
-                              options.loop_closure_gate_variance_factor
-                        : std::numeric_limits<double>::infinity();
+  // A loop closure's residual has 6 components (translation and rotation), 3 in the plane.
+  gate_threshold_ =
+      options.loop_closure_gate_confidence > 0
+          ? toro::chiSquareQuantile(options.loop_closure_gate_confidence, options.planar ? 3 : 6) *
+                options.loop_closure_gate_variance_factor
+          : std::numeric_limits<double>::infinity();
 }
 
 void Pipeline::refuse(const std::string& category, const std::string& detail) {
@@ -145,7 +151,9 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
                                         msg.header.frame_id + "', odom_frame is '" + options_.odom_frame + "'");
     return;
   }
-  const OdometrySample sample{stamp, poseFromMsg(msg.pose.pose), covarianceMatrix(msg.pose.covariance)};
+  const OdometrySample sample{stamp,
+                              options_.planar ? planarPoseFromMsg(msg.pose.pose) : poseFromMsg(msg.pose.pose),
+                              covarianceMatrix(msg.pose.covariance)};
   if (resume_after_ && !resumeWith(sample)) return;
   if (!newest_odometry_.isZero() && stamp <= newest_odometry_) {
     const double back = (newest_odometry_ - stamp).toSec();
@@ -241,9 +249,11 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
     refuseLoopClosure(refused, msg);
     return;
   }
-  const InformationResult info = informationFromCovariance(
-      msg.covariance, options_.loop_closure_default_stddev, options_.loop_closure_unmeasured_variance);
-  toro::Pose3 measurement = poseFromMsg(msg.from_T_to);
+  const toro::Matrix6 covariance = covarianceMatrix(msg.covariance);
+  const InformationResult info =
+      informationFromCovariance(options_.planar ? planarCovariance(covariance) : covariance,
+                                options_.loop_closure_default_stddev, options_.loop_closure_unmeasured_variance);
+  toro::Pose3 measurement = options_.planar ? planarPoseFromMsg(msg.from_T_to) : poseFromMsg(msg.from_T_to);
   if (msg.id_from < 0 || msg.id_to < 0) {
     // The message measures stamp_from_T_stamp_to; the constraint joins the matched keyframes.
     measurement = keyframeToStamp(match.from, msg.stamp_from) * measurement *
@@ -338,6 +348,7 @@ toro::TreeOptimizerOptions Pipeline::optimizerOptions() const {
   out.gamma = options_.optimization.gamma;
   out.robust = options_.robust;
   out.robust.width = robust_width_;
+  out.parameterization = options_.planar ? toro::Parameterization::kPlanar : toro::Parameterization::kSpatial;
   return out;
 }
 

@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/planar.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 #include "toro_ros/pipeline/persistence.h"
 #include "toro_ros/pipeline/pipeline.h"
@@ -111,7 +112,10 @@ std::string Pipeline::loadGraph(const GraphFileRef& file) {
   is_loop_closure_.assign(graph.numConstraints(), false);
   for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;
   replaceGraph(graph);
-  for (const KeyframeRecord& k : sidecar.keyframes) keyframes_.append(k);
+  for (KeyframeRecord k : sidecar.keyframes) {
+    if (options_.planar) k.odom_T_base = toro::projectToPlane(k.odom_T_base);  // as at input
+    keyframes_.append(k);
+  }
   rejected_ = sidecar.rejected;
   const KeyframeRecord& newest = keyframes_.newest();
   // The sidecar does not keep odometry covariances: NaN marks the reference's as unknown, so the

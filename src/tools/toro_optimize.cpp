@@ -1,4 +1,4 @@
-// toro_optimize: optimise a pose-graph file (g2o or TORO, 2D or 3D) with TORO 3D and report the
+// toro_optimize: optimise a pose-graph file (g2o or TORO, 2D or 3D) with TORO and report the
 // error measures of ../shared/datasets/REFERENCE.md before, during and after.
 //
 // Structure: parseArguments() fills CliOptions; optimise() reads the graph and runs
@@ -23,6 +23,7 @@
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/planar.h"
 #include "toro_ros/core/tree_optimizer.h"
 
 namespace {
@@ -33,7 +34,8 @@ constexpr int kExitBadArguments = 2;
 
 constexpr const char* kUsage =
     "usage: toro_optimize [options] INPUT\n"
-    "Optimises a pose graph with TORO 3D (tree parameterisation + stochastic gradient descent),\n"
+    "Optimises a pose graph with TORO (tree parameterisation + stochastic gradient descent; in SE(3),\n"
+    "or in SE(2) for 2D files and with --planar),\n"
     "then by default with a sparse Levenberg-Marquardt finish on the g2o chi2.\n"
     "INPUT: g2o (VERTEX_SE3:QUAT/EDGE_SE3:QUAT, VERTEX_SE2/EDGE_SE2) or TORO (VERTEX3/EDGE3,\n"
     "VERTEX2/EDGE2); format by extension (.g2o, .graph), otherwise by the first data line.\n"
@@ -71,6 +73,12 @@ constexpr const char* kUsage =
     "                            closures' chi2); implies --robust\n"
     "  --rejected-out FILE       write the loop closures whose final weight is below 0.5, one\n"
     "                            'from to' pair a line (needs --robust)\n"
+    "  --planar                  optimise in the plane (TORO in SE(2), the finish on x, y, theta);\n"
+    "                            a 3D input is projected first: z, roll and pitch are dropped, and\n"
+    "                            of its information only the x, y, yaw block is kept; the result is a\n"
+    "                            2D graph (-o writes 2D tags).  The default for 2D files\n"
+    "  --no-planar               TORO's 3D code even on a 2D file (to compare; the file stays 2D and\n"
+    "                            its finish planar)\n"
     "  --gamma G                 rotational learning rate of iteration k is 1/(G k) (default 1 for\n"
     "                            --mode toro, 0.1 before the finish: larger steps find the best\n"
     "                            basin on big-noise graphs;\n"
@@ -105,6 +113,8 @@ struct CliOptions {
   toro::RobustOptions robust;    // kernel kNone: off
   std::string rejected_out;
   std::optional<double> gamma;  // unset: the mode's default
+  // --planar / --no-planar; kFromGraph (neither): SE(2) for 2D files.
+  toro::Parameterization parameterization = toro::Parameterization::kFromGraph;
   toro::ToroInformationOrder toro_order = toro::ToroInformationOrder::kTranslationFirst;
   bool quiet = false;
   bool help = false;
@@ -197,6 +207,11 @@ CliOptions parseArguments(const std::vector<std::string>& args) {
     } else if (a == "--robust-width") {
       o.robust.width = parsePositive(a, value());
       if (!o.robust.enabled()) o.robust.kernel = toro::RobustKernel::kDcs;
+    } else if (a == "--planar" || a == "--no-planar") {
+      const auto p = a == "--planar" ? toro::Parameterization::kPlanar : toro::Parameterization::kSpatial;
+      if (o.parameterization != toro::Parameterization::kFromGraph && o.parameterization != p)
+        throw UsageError("--planar and --no-planar exclude each other");
+      o.parameterization = p;
     } else if (a == "--rejected-out") {
       o.rejected_out = value();
     } else if (a == "--toro-info-order") {
@@ -286,6 +301,7 @@ toro::OptimizeOptions optimizeOptions(const CliOptions& o) {
   options.toro.gamma = o.gamma ? *o.gamma
                                : (o.mode == toro::OptimizeMode::kToro ? toro::TreeOptimizerOptions{}.gamma
                                                                       : toro::kToroGammaBeforeFinish);
+  options.toro.parameterization = o.parameterization;
   options.toro_max_iterations = o.iterations;
   options.toro_min_iterations = std::min(options.toro_min_iterations, o.iterations);
   // TORO alone runs exactly -i iterations, as it always did.
@@ -312,11 +328,22 @@ void printMeasures(const char* label, const Measures& m) {
       label, m.chi2, m.se_sync, m.toro.sum, m.toro.max_rotation, m.toro.max_translation);
 }
 
+// The group TORO runs in, as TreeOptimizer decides it (Parameterization).
+const char* groupName(toro::Parameterization p, const toro::PoseGraph& graph) {
+  const bool planar =
+      p == toro::Parameterization::kPlanar ||
+      (p == toro::Parameterization::kFromGraph && graph.dimension() == toro::GraphDimension::k2D);
+  return planar ? "planar (TORO in SE(2))" : "TORO in SE(3)";
+}
+
 void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measures& before,
                   const Measures& after, const RunLog& log, const toro::OptimizeReport& result) {
-  std::printf("summary: %s, %zu nodes, %zu constraints, %zu iterations, initial guess %s\n", o.input.c_str(),
-              graph.numNodes(), graph.numConstraints(), log.iterations,
-              !o.chain_guess ? "file" : o.odometry_guess ? "odometry" : "chain");
+  std::printf("summary: %s, %zu nodes, %zu constraints, %zu iterations, initial guess %s, %s\n",
+              o.input.c_str(), graph.numNodes(), graph.numConstraints(), log.iterations,
+              !o.chain_guess     ? "file"
+              : o.odometry_guess ? "odometry"
+                                 : "chain",
+              groupName(o.parameterization, graph));
   if (o.robust.enabled()) {
     std::printf("  robust  kernel %s, width %g (given %g): %zu of %zu loop closures rejected (weight < %g)\n",
                 toro::robustKernelName(o.robust.kernel), result.robust_width > 0 ? result.robust_width : o.robust.width,
@@ -373,8 +400,14 @@ int optimise(CliOptions o) {
   toro::ReadOptions read_options;
   read_options.toro_information_order = o.toro_order;
   toro::ReadReport report;
-  const toro::PoseGraph graph = toro::readGraph(o.input, read_options, &report);
+  toro::PoseGraph graph = toro::readGraph(o.input, read_options, &report);
   if (!o.quiet) std::printf("%s\n", toro::describeReport(report).c_str());
+  if (o.parameterization == toro::Parameterization::kPlanar &&
+      graph.dimension() != toro::GraphDimension::k2D) {
+    // Here rather than inside the optimiser, so that "before" already measures the planar graph.
+    graph = toro::projectToPlane(graph);
+    if (!o.quiet) std::printf("projected onto the plane (--planar): z, roll and pitch dropped\n");
+  }
   if (graph.numConstraints() == 0)
     throw std::runtime_error(o.input + ": no constraints, nothing to optimise");
   o.chain_guess = decideChain(o, report);

@@ -12,8 +12,12 @@
 #include <string>
 #include <vector>
 
+#include <random>
+
 #include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/planar.h"
 
 namespace {
 
@@ -76,7 +80,104 @@ std::vector<std::string> linesStartingWith(const std::string& text, const std::s
   return out;
 }
 
+// A 2D g2o file: a planar robot driving two laps of a 12 x 8 m rectangle, noisy odometry, loop
+// closures between the laps.
+void writePlanarLaps(const fs::path& path) {
+  std::vector<toro::Pose3> truth;
+  toro::Pose3 pose;
+  for (int lap = 0; lap < 2; ++lap)
+    for (int side = 0; side < 4; ++side)
+      for (int step = 0; step < (side % 2 ? 8 : 12); ++step) {
+        truth.push_back(pose);
+        pose =
+            pose * toro::Pose3::fromRollPitchYaw(1, 0, 0, 0, 0, step == (side % 2 ? 7 : 11) ? M_PI / 2 : 0);
+      }
+  std::mt19937 rng(3);
+  std::normal_distribution<double> n(0.0, 1.0);
+  toro::PoseGraph g;
+  g.setDimension(toro::GraphDimension::k2D);
+  for (std::size_t i = 0; i < truth.size(); ++i) g.addNode(static_cast<toro::NodeId>(i), toro::Pose3());
+  toro::Matrix6 info = toro::Matrix6::Zero();
+  info.diagonal() << 400, 400, 1, 1, 1, 4 * 2500;
+  info = toro::projectInformationToPlane(info);
+  const auto add = [&](std::size_t a, std::size_t b) {
+    const toro::Pose3 noise =
+        toro::Pose3::fromRollPitchYaw(0.05 * n(rng), 0.05 * n(rng), 0, 0, 0, 0.02 * n(rng));
+    g.addConstraint(toro::Constraint{static_cast<toro::NodeId>(a), static_cast<toro::NodeId>(b),
+                                     toro::relativePose(truth[a], truth[b]) * noise, info});
+  };
+  for (std::size_t i = 0; i + 1 < truth.size(); ++i) add(i, i + 1);
+  for (std::size_t i = 0; i < truth.size() / 2; i += 4) add(i, i + truth.size() / 2);
+  toro::writeGraph(g, path.string());
+}
+
 }  // namespace
+
+TEST_F(ToroOptimizeCli, PlanarIsTheDefaultFor2DFilesAndTheSameAsThe3DCode) {
+  const fs::path input = dir_ / "laps2d.g2o";
+  writePlanarLaps(input);
+  Result planar = run("-q --mode toro -i 30 " + input.string());
+  ASSERT_EQ(planar.exit_code, 0) << planar.err;
+  EXPECT_NE(planar.out.find("initial guess chain, planar (TORO in SE(2))"), std::string::npos) << planar.out;
+  Result spatial = run("-q --mode toro -i 30 --no-planar " + input.string());
+  ASSERT_EQ(spatial.exit_code, 0) << spatial.err;
+  EXPECT_NE(spatial.out.find("initial guess chain, TORO in SE(3)"), std::string::npos) << spatial.out;
+  const double before = numberAfter(planar.out, "before", "g2o chi2");
+  const double after = numberAfter(planar.out, "after", "g2o chi2");
+  EXPECT_LT(after, 0.1 * before) << planar.out;
+  // One algorithm in two groups (10 significant digits printed).
+  EXPECT_NEAR(numberAfter(spatial.out, "after", "g2o chi2"), after, 1e-8 * after) << spatial.out;
+  // With the finish: the same optimum, and the written file is 2D either way.
+  for (const std::string flag : {"", "--no-planar "}) {
+    const fs::path output = dir_ / "finished.g2o";
+    const Result r = run("-q " + flag + "-o " + output.string() + " " + input.string());
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const std::string text = slurp(output);
+    EXPECT_NE(text.find("VERTEX_SE2 "), std::string::npos) << flag;
+    EXPECT_EQ(text.find("SE3"), std::string::npos) << flag;
+    const toro::PoseGraph written = toro::readGraph(output.string());
+    EXPECT_NEAR(toro::g2oChi2(written), numberAfter(r.out, "after", "g2o chi2"), 1e-8 * after) << flag;
+    toro::PoseGraph reference = toro::readGraph(input.string());
+    toro::optimizeGraph(reference, toro::OptimizeOptions{});
+    EXPECT_NEAR(toro::g2oChi2(written), toro::g2oChi2(reference), 1e-6 * toro::g2oChi2(reference)) << flag;
+  }
+}
+
+TEST_F(ToroOptimizeCli, PlanarProjectsA3DInputAndWritesA2DFile) {
+  const fs::path output = dir_ / "planar.g2o";
+  Result r = run("--planar -o " + output.string() + " " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("projected onto the plane (--planar): z, roll and pitch dropped"), std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("planar (TORO in SE(2))"), std::string::npos) << r.out;
+  const std::string text = slurp(output);
+  EXPECT_NE(text.find("EDGE_SE2 "), std::string::npos);
+  EXPECT_EQ(text.find("SE3"), std::string::npos);
+  const toro::PoseGraph written = toro::readGraph(output.string());
+  ASSERT_EQ(written.dimension(), toro::GraphDimension::k2D);
+  ASSERT_EQ(written.numNodes(), 125u);
+  ASSERT_EQ(written.numConstraints(), 297u);
+  const double after = numberAfter(r.out, "after", "g2o chi2");
+  EXPECT_NEAR(toro::g2oChi2(written), after, 1e-8 * after);
+  // The planar optimum of the projection, computed in this process.
+  toro::PoseGraph reference = toro::projectToPlane(toro::readGraph(kSmallGrid));
+  toro::optimizeGraph(reference, toro::OptimizeOptions{});
+  EXPECT_NEAR(after, toro::g2oChi2(reference), 1e-6 * toro::g2oChi2(reference));
+  for (const toro::Node& n : written.nodes()) {
+    const toro::Pose3& p = reference.pose(n.id);
+    EXPECT_NEAR((n.pose.translation() - p.translation()).norm(), 0.0, 1e-6) << n.id;
+    EXPECT_TRUE(toro::isExactlyPlanar(p)) << n.id;
+  }
+  // The "before" line measures the projection (2D chi2 of the file's poses projected).
+  r = run("-q --planar --mode toro -i 0 --initial-guess file " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const double projected_chi2 = toro::g2oChi2(toro::projectToPlane(toro::readGraph(kSmallGrid)));
+  EXPECT_NEAR(numberAfter(r.out, "before", "g2o chi2"), projected_chi2, 1e-8 * projected_chi2) << r.out;
+  EXPECT_NE(projected_chi2, toro::g2oChi2(toro::readGraph(kSmallGrid)));
+  r = run("--planar --no-planar " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(r.err, "toro_optimize: --planar and --no-planar exclude each other (see --help)\n");
+}
 
 TEST_F(ToroOptimizeCli, OptimisesReportsEveryIterationAndWritesTheResult) {
   const fs::path output = dir_ / "result.g2o";

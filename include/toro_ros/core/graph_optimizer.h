@@ -48,7 +48,9 @@ struct OptimizeOptions {
   // Start: the poses stored in the graph, or the measurements chained along TORO's tree.
   InitialGuess initial_guess = InitialGuess::kChainOnTree;
   // gamma defaults to kToroGammaBeforeFinish (the default mode); use TreeOptimizerOptions{}.gamma
-  // for TORO alone.
+  // for TORO alone.  toro.parameterization picks the group: SE(2) for 2D graphs by default;
+  // kPlanar on a 3D graph first replaces `graph` by its projection onto the plane (planar.h), so the
+  // finish, the metrics and the result are planar too (the finish of a 2D graph is always planar).
   TreeOptimizerOptions toro = toroOptionsBeforeFinish();
   // TORO phase length (0: no TORO iteration, only the initial guess).  In kToro mode the switch
   // threshold still ends the phase early when it is positive; set it to 0 to run exactly

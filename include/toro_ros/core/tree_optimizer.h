@@ -1,10 +1,17 @@
-// TORO 3D: stochastic gradient descent on a tree parameterisation of the pose graph
-// (Grisetti, Grzonka, Stachniss, Pfaff, Burgard, IROS 2007).
+// TORO: stochastic gradient descent on a tree parameterisation of the pose graph, in 3D
+// (Grisetti, Grzonka, Stachniss, Pfaff, Burgard, IROS 2007) or in the plane (Grisetti, Stachniss,
+// Grzonka, Burgard, RSS 2007).
 //
 // Each node's parameter is its pose relative to its tree parent; a node's pose is the product of
 // the parameters along the tree path from the root.  One iteration visits every constraint once,
 // ordered by the level of its top node; each visit moves only the parameters on the constraint's
 // tree path, so the top node (and everything outside the path's subtrees) keeps its pose.
+//
+// The group is chosen once (TreeOptimizerOptions::parameterization): SE(3) parameters with
+// rotation-vector errors, or SE(2) parameters (x, y, theta) whose rotation shares simply add.  The
+// tree, the step fractions, the preconditioner, the schedule and the robust weights are the same
+// code for both; only the update of one path is a template over the group (tree_groups.h).  On a
+// planar graph the two give the same poses up to rounding, SE(2) several times faster.
 #pragma once
 
 #include <cstddef>
@@ -15,6 +22,7 @@
 #include "toro_ros/core/parameter_tree.h"
 #include "toro_ros/core/pose_graph.h"
 #include "toro_ros/core/robust_kernel.h"
+#include "toro_ros/core/tree_groups.h"
 
 namespace toro {
 
@@ -34,6 +42,20 @@ enum class RotationUpdate {
                 // (bench/test only: it shows why the paper's update is needed, Fig. 2)
 };
 
+// The group of the parameters.
+enum class Parameterization {
+  // SE(2) for a 2D graph (GraphDimension::k2D), SE(3) otherwise, decided by each setGraph (an
+  // optimiser that only grows by addNode/addConstraint from the start is SE(3)).
+  kFromGraph,
+  // SE(2): the optimiser's graph is 2D (k2D), and every pose and constraint given to it is
+  // projected onto the plane first (planar.h: z, roll and pitch dropped, the x, y, yaw block of
+  // the information kept), so its poses are exactly planar (z = 0, roll = pitch = 0).
+  kPlanar,
+  // SE(3), whatever the graph (also a 2D one: the comparison of the two codes).
+  kSpatial,
+};
+const char* parameterizationName(Parameterization p);
+
 struct TreeOptimizerOptions {
   // Learning rate of iteration k is 1 / (gamma * k) for the rotational part of each update...
   double gamma = 1.0;
@@ -42,7 +64,9 @@ struct TreeOptimizerOptions {
   // which a rate decaying as fast as the rotational one cannot keep up with; 0.1 was chosen by
   // measurement on sphere2500, parking-garage, smallGrid3D and sphere_bignoise (bench/results.md).
   double translation_gamma = 0.1;
+  // kNaiveEuler applies to SE(3) only: planar rotations commute, so in SE(2) both are the same.
   RotationUpdate rotation_update = RotationUpdate::kSlerp;
+  Parameterization parameterization = Parameterization::kFromGraph;
   // Robust loop closures (robust_kernel.h): each loop closure's information, in its step and in the
   // preconditioner, is scaled by a weight from its chi2 at the start of the pass that visits it
   // (a new one's at its arrival), so a wrong one moves the map by a weighted fraction only.
@@ -68,11 +92,13 @@ class TreeOptimizer {
   explicit TreeOptimizer(const TreeOptimizerOptions& options = {});
 
   // Takes the graph (nodes, constraints, poses), builds the tree, the initial parameters and the
-  // preconditioner.  Resets the iteration counter.
+  // preconditioner.  Resets the iteration counter.  Chooses the group (Parameterization); in SE(2)
+  // the optimiser's graph is the projection of `graph` onto the plane (planar.h).
   void setGraph(const PoseGraph& graph, InitialGuess guess = InitialGuess::kChainOnTree);
 
   // Online growth.  A new node needs an initial pose (e.g. its parent's pose times the odometry);
-  // ids of new nodes should increase (older ids work but trigger a tree rebuild).
+  // ids of new nodes should increase (older ids work but trigger a tree rebuild).  In SE(2) the
+  // pose and the constraint are projected onto the plane first.
   void addNode(NodeId id, const Pose3& pose);
   // Validated like PoseGraph::addConstraint (throws GraphError); returns the constraint's index.
   std::size_t addConstraint(const Constraint& constraint);
@@ -121,46 +147,112 @@ class TreeOptimizer {
   // iterations); takes effect at the next weight refresh.
   void setRobustWidth(double width) { options_.robust.width = width; }
 
-  // The graph with the current pose estimates.
+  // The graph with the current pose estimates (2D, exactly planar, when planar()).
   const PoseGraph& graph() const { return graph_; }
+  // Whether the parameters are SE(2) (see Parameterization).
+  bool planar() const { return planar_; }
   const ParameterTree& tree() const { return tree_; }
   std::size_t iteration() const { return iteration_; }
   const TreeOptimizerOptions& options() const { return options_; }
   void setIteration(std::size_t iteration) { iteration_ = iteration; }
 
  private:
-  void chainInitialGuess();
+  using Spatial = detail::SpatialGroup;
+  using Planar = detail::PlanarGroup;
+
+  void resetGraph(const PoseGraph& graph);
   void chainOdometryGuess();
-  void parametersFromPoses();
-  void updateConstraint(std::size_t c, double learning_rate);
-  void distributeRotation(std::size_t c, double learning_rate);
-  void distributeRotationNaively(std::size_t c, double learning_rate);
-  void distributeTranslation(std::size_t c, double learning_rate);
-  void writeBackParameters();
-  void recomputePoses();
+  // Per-constraint data: endpoints, stiffness, robust flags; the group's part through
+  // registerGroupConstraint.
+  void registerConstraint(std::size_t c);
+  void setWeight(std::size_t c, double weight);
+  void adjustPreconditioner(std::size_t c, double rotation_delta, double translation_delta);
   // Preconditioner and visiting order, both from one walk over every constraint's path.
   void refreshStructure();
   void addToPreconditioner(std::size_t c);
-  void registerConstraint(std::size_t c);
   std::vector<std::size_t> sortedByTopLevel(std::vector<std::size_t> constraints);
-  void runPass(const std::vector<std::size_t>& constraints, double learning_rate);
   // Robust weights of the given constraints from the current poses; the preconditioner follows
   // (incrementally) when a weight changed by more than a tolerance.  Returns how many changed.
   std::size_t refreshWeights(const std::vector<std::size_t>& constraints);
-  void setWeight(std::size_t c, double weight);
   // A robust constraint's weight (options_.robust_by_innovation: from its innovation, see the
   // .cpp), and in `judged_chi2` the chi2 the kernel was applied to.
   double innovationWeight(std::size_t c, double* judged_chi2);
-  void adjustPreconditioner(std::size_t c, double rotation_delta, double translation_delta);
+
+  // Group dispatchers (tree_optimizer_update.cpp): each calls the template for the chosen group.
+  void clearParameters();
+  void registerGroupConstraint(std::size_t c);
+  void appendParameter(const Pose3& pose);
+  void parameterFromPoses(std::size_t v);
+  void chainInitialGuess();
+  void parametersFromPoses();
+  void recomputePoses();
+  void runPass(const std::vector<std::size_t>& constraints, double learning_rate);
+  void updateConstraint(std::size_t c, double learning_rate);
+
+  template <class G>
+  detail::TreeGroupState<G>& state() {
+    if constexpr (G::kPlanar) {
+      return planar_state_;
+    } else {
+      return spatial_;
+    }
+  }
+  template <class G>
+  void registerGroupConstraintIn(std::size_t c);
+  template <class G>
+  void parameterFromPosesIn(std::size_t v);
+  template <class G>
+  void chainInitialGuessIn();
+  template <class G>
+  void recomputePosesIn();
+  template <class G>
+  void runPassIn(const std::vector<std::size_t>& constraints, double learning_rate);
+  template <class G>
+  void updateConstraintIn(std::size_t c, double learning_rate);
+  // What one visit moves its path by: the rotation error and the translation residual in the top
+  // node's frame, each with the fraction of it that is removed (0 when its information is 0).
+  template <class G>
+  struct PathStep {
+    typename G::Tangent rotation_error{};
+    double rotation_fraction = 0.0;
+    bool rotate = false;
+    typename G::Rotation first_end_rotation = G::Rotation::Identity();  // after the step, if rotate
+    typename G::Translation residual = G::Translation::Zero();
+    double translation_fraction = 0.0;
+    bool translate = false;
+  };
+  template <class G>
+  void rotationStep(std::size_t c, double learning_rate, double weight_sum, PathStep<G>* step);
+  template <class G>
+  void translationStep(std::size_t c, double learning_rate, double weight_sum, PathStep<G>* step);
+  template <class G>
+  void updateParentEdge(std::size_t c, double learning_rate, bool first_end_is_child);
+  template <class G>
+  void composeFromTop(const std::vector<std::size_t>& branch, std::vector<typename G::Pose>& poses);
+  // first_end_branch: `branch` is the one of the constraint's first end (step.first_end_rotation).
+  template <class G>
+  void moveAndWriteBack(const std::vector<std::size_t>& branch, const std::vector<double>& rotation_share,
+                        const std::vector<double>& translation_share, const PathStep<G>& step,
+                        bool first_end_branch, std::vector<typename G::Pose>& poses);
+  // The shares of the path were computed by the caller; weight_sum is their total.
+  void distributeRotationNaively(std::size_t c, double learning_rate, double weight_sum);  // SE(3) only
 
   TreeOptimizerOptions options_;
+  bool planar_ = false;  // SE(2) parameters (Parameterization)
   PoseGraph graph_;
   ParameterTree tree_;
-  std::vector<Pose3> parameters_;        // parent_T_node per dense node index (root: world_T_root)
+  // Parameters, measurements and per-update scratch of the group in use (the other one is empty).
+  detail::TreeGroupState<Spatial> spatial_;
+  detail::TreeGroupState<Planar> planar_state_;
   std::vector<double> rotation_weight_;  // preconditioner per node: sum of rotational information
   std::vector<double> translation_weight_;
-  std::vector<double> inverse_rotation_weight_;      // 1 / rotation_weight_, kept beside it
-  std::vector<double> inverse_translation_weight_;
+  // 1 / rotation_weight_ and 1 / translation_weight_, kept beside them; side by side per node,
+  // because every update reads both for each path node.
+  struct InverseStiffness {
+    double rotation;
+    double translation;
+  };
+  std::vector<InverseStiffness> inverse_weight_;
   std::vector<std::size_t> from_index_, to_index_;  // dense endpoints per constraint
   // Scalar information per constraint (block_stiffness.h): base_* as the information gives it,
   // constraint_* = base * robust weight, used by the steps and the preconditioner.
@@ -172,16 +264,9 @@ class TreeOptimizer {
   std::vector<double> preconditioned_weight_;  // the weight whose share the preconditioner holds
   std::vector<char> in_preconditioner_;        // per constraint: added to the preconditioner
   std::vector<char> robust_;           // per constraint: a loop closure weighted robustly
-  // Constraints with unmeasured axes move only along their measured ones: projectors in the frame
-  // of the constraint (its "to" end), kept only for them (index into measured_axes_, or -1).
-  struct MeasuredAxes {
-    Matrix3 translation = Matrix3::Identity();
-    Matrix3 rotation = Matrix3::Identity();
-    bool translation_partial = false;
-    bool rotation_partial = false;
-  };
+  // Constraints with unmeasured axes move only along their measured ones: the projectors live in
+  // the group state (measured_axes), indexed from here (-1: every axis measured).
   std::vector<int> measured_axes_index_;
-  std::vector<MeasuredAxes> measured_axes_;
   std::vector<std::size_t> order_;       // constraints sorted by top-node level
   std::vector<int> top_level_;           // level of each constraint's top node (refreshStructure)
   bool structure_dirty_ = true;          // tree changed since refreshStructure()
@@ -192,9 +277,9 @@ class TreeOptimizer {
   double translation_rate_factor_ = 1.0;  // gamma / translation_gamma
   // Scratch buffers reused by updateConstraint (no allocation in the hot loop).
   std::vector<std::size_t> up_, down_;
-  std::size_t top_ = 0;
-  std::vector<Pose3> up_poses_, down_poses_;          // top_T_node for the path nodes
-  std::vector<double> up_share_, down_share_;         // signed fraction of the correction per node
+  // Signed fraction of the correction per path node, rotational and translational.
+  std::vector<double> up_rotation_share_, down_rotation_share_;
+  std::vector<double> up_translation_share_, down_translation_share_;
   std::vector<char> affected_mark_;
   InnovationScratch innovation_scratch_;
 };

@@ -45,6 +45,9 @@ struct KeyframerOptions {
   OdometryCovarianceMode covariance_mode = OdometryCovarianceMode::kAuto;
   DefaultStddev default_stddev;  // on axes whose covariance is unknown (zero, not finite)
   double unmeasured_variance = kDefaultUnmeasuredVariance;  // m^2 / rad^2 at or above: unmeasured
+  // Read only the x, y, yaw rows of the covariances (planarCovariance); the pipeline sets it from
+  // PipelineOptions::planar.
+  bool planar = false;
   std::string validate() const;
 };
 

@@ -28,6 +28,15 @@ InformationResult informationFromCovariance(const Covariance6& covariance, const
 
 toro::Matrix6 covarianceMatrix(const Covariance6& covariance);
 
+// Planar mode (PipelineOptions::planar).  The pose as the planar pipeline takes it: projected onto
+// the plane (x, y, heading; z, roll and pitch dropped).
+toro::Pose3 planarPoseFromMsg(const geometry_msgs::Pose& msg);
+// A covariance as the planar pipeline reads it: the x, y, yaw rows and columns as given; those of
+// z, roll and pitch (whatever a sender puts there: 0, 1e6, correlations) replaced by uncorrelated
+// variances of the planar ones' scale, so that only the planar block decides whether the
+// covariance is usable, and the planar information is the inverse of that block.
+toro::Matrix6 planarCovariance(const toro::Matrix6& covariance);
+
 // Empty if the message can be used, else why not (non-finite pose, zero quaternion, zero stamp).
 std::string validateOdometry(const nav_msgs::Odometry& msg);
 std::string validateLoopClosure(const LoopClosure& msg);

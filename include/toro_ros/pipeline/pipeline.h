@@ -95,6 +95,13 @@ struct PipelineOptions {
   // adapts to the accepted loop closures' residuals after each full round (adaptive_width_factor).
   toro::RobustOptions robust{toro::RobustKernel::kDcs};
   PersistenceOptions persistence;
+  // Planar robots (a floor): every odometry pose and loop-closure measurement is projected onto
+  // the plane at input (x, y and the heading kept; z, roll and pitch dropped; toro/core/planar.h),
+  // their covariances are read from the x, y, yaw rows only (planarCovariance), the optimisers work
+  // in SE(2), and everything the pipeline gives out is exactly planar: corrected poses and
+  // map -> odom with z = 0 and roll = pitch = 0, saved graphs as 2D files.  A loaded 3D graph is
+  // projected the same way.
+  bool planar = false;
   std::string validate() const;
 };
 
