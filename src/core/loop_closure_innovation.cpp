@@ -95,25 +95,6 @@ std::size_t aroundLoopClosure(const TreeOptimizer& opt, std::size_t end, std::si
   return u;
 }
 
-// Covariance (angle units, frame of v) of v relative to its tree parent as the rest of the graph
-// holds it: the inverse of the node's preconditioner, the summed weighted information of every
-// constraint whose path runs through that tree edge (those are what keep v where it is relative
-// to its parent), without c's own share.  Where many loop closures hold a region together this is
-// small, so a wrong loop closure there is judged strictly; along a stretch of plain odometry it
-// is the odometry's.
-Matrix6 heldCovariance(const TreeOptimizer& opt, std::size_t v, std::size_t c, bool c_on_path) {
-  double t = opt.nodeTranslationStiffness(v), r = opt.nodeRotationStiffness(v);
-  if (c_on_path && opt.inPreconditioner(c)) {
-    t -= opt.constraintTranslationStiffness(c);
-    r -= opt.constraintRotationStiffness(c);
-  }
-  Matrix6 cov = Matrix6::Zero();
-  cov.diagonal().head<3>().setConstant(t > 0.0 ? 1.0 / t : kUnconstrainedVariance);
-  // Quaternion-vector units (about half the angle) -> rad: information / 4, variance x 4.
-  cov.diagonal().tail<3>().setConstant(r > 0.0 ? 4.0 / r : kUnconstrainedVariance);
-  return cov;
-}
-
 }  // namespace
 
 double loopClosureInnovationChi2(const TreeOptimizer& opt, std::size_t c, InnovationScratch& scratch) {
@@ -131,7 +112,7 @@ double loopClosureInnovationChi2(const TreeOptimizer& opt, std::size_t c, Innova
   for (const auto* branch : {&scratch.up, &scratch.down}) {
     for (std::size_t v : *branch) {
       const Matrix6 ad = adjoint(b_T_world * g.node(v).pose);
-      total += ad * heldCovariance(opt, v, c, true) * ad.transpose();
+      total += ad * edgeCovariance(opt, v, opt.tree().parent(v), c) * ad.transpose();
     }
   }
   total *= kPathCovarianceLenience;

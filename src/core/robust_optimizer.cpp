@@ -190,14 +190,6 @@ class RobustRun {
   FinishOptions finish_;
 };
 
-// Loop closures of `graph` whose weight in `weights` is below kRejectedWeight.
-std::size_t rejectedLoopClosures(const PoseGraph& graph, const std::vector<double>& weights) {
-  std::size_t n = 0;
-  for (std::size_t c = 0; c < graph.numConstraints(); ++c)
-    n += isLoopClosure(graph.constraints()[c]) && weights[c] < kRejectedWeight ? 1 : 0;
-  return n;
-}
-
 }  // namespace
 
 void optimizeRobustly(PoseGraph& graph, const OptimizeOptions& options, const Recorder& record,

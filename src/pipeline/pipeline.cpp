@@ -110,12 +110,15 @@ Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn, InfoSink in
   const std::string error = options.validate();
   if (!error.empty()) throw std::invalid_argument("invalid pipeline options: " + error);
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
+  gate_threshold_ = gateThresholdFor(options);
+}
+
+double Pipeline::gateThresholdFor(const PipelineOptions& options) {
   // A loop closure's residual has 6 components (translation and rotation), 3 in the plane.
-  gate_threshold_ =
-      options.loop_closure_gate_confidence > 0
-          ? toro::chiSquareQuantile(options.loop_closure_gate_confidence, options.planar ? 3 : 6) *
-                options.loop_closure_gate_variance_factor
-          : std::numeric_limits<double>::infinity();
+  return options.loop_closure_gate_confidence > 0
+             ? toro::chiSquareQuantile(options.loop_closure_gate_confidence, options.planar ? 3 : 6) *
+                   options.loop_closure_gate_variance_factor
+             : std::numeric_limits<double>::infinity();
 }
 
 void Pipeline::refuse(const std::string& category, const std::string& detail) {

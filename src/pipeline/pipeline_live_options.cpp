@@ -4,9 +4,7 @@
 // matcher, persistence, the learning rate and robust kernel of the optimiser that already holds
 // the graph) keep the values the pipeline was built with.
 #include <algorithm>
-#include <limits>
 
-#include "toro_ros/core/chi_square.h"
 #include "toro_ros/pipeline/pipeline.h"
 
 namespace toro_ros {
@@ -33,17 +31,12 @@ std::string Pipeline::applyLiveOptions(const PipelineOptions& requested) {
   const std::string error = next.validate();
   if (!error.empty()) return "invalid options: " + error;
 
-  // The keyframer keeps its reference keyframe; only its thresholds change.
-  Keyframer keyframer(next.keyframer);
-  if (keyframer_.last()) keyframer.setLast(*keyframer_.last());
-  keyframer_ = keyframer;
+  // The keyframer keeps its reference keyframe and what it learnt of the covariance convention;
+  // only its thresholds change.
+  keyframer_.setThresholds(next.keyframer.distance_m, next.keyframer.angle_rad, next.keyframer.interval_sec);
   // A round in progress does not run more passes than a round now has.
   full_passes_left_ = std::min(full_passes_left_, next.optimization.full_iterations);
-  // The same threshold as the constructor computes.
-  gate_threshold_ = next.loop_closure_gate_confidence > 0
-                        ? toro::chiSquareQuantile(next.loop_closure_gate_confidence, 6) *
-                              next.loop_closure_gate_variance_factor
-                        : std::numeric_limits<double>::infinity();
+  gate_threshold_ = gateThresholdFor(next);
   const bool width_changed = next.robust.width != options_.robust.width;
   options_ = next;
   if (width_changed && options_.robust.enabled()) {

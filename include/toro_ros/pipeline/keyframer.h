@@ -79,6 +79,12 @@ class Keyframer {
   // of the source is forgotten (the new run's odometry may come from another source).
   void setLast(const OdometrySample& sample);
 
+  // New keyframe thresholds (run-time tuning); the reference keyframe and the convention stay.
+  void setThresholds(double distance_m, double angle_rad, double interval_sec) {
+    options_.distance_m = distance_m;
+    options_.angle_rad = angle_rad;
+    options_.interval_sec = interval_sec;
+  }
   const std::optional<OdometrySample>& last() const { return last_; }
   void reset();
 

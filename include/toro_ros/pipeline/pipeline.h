@@ -272,6 +272,8 @@ class Pipeline {
   std::string logged_odometry_rule_;          // the convention last logged ("" none yet)
   std::vector<AxisReadings> logged_loop_closure_axes_;  // loop-closure readings logged so far
   std::string loop_closure_rule_;
+  // The chi2 above which the gate refuses a loop closure (infinity when the gate is off).
+  static double gateThresholdFor(const PipelineOptions& options);
   double gate_threshold_;
   double robust_width_;  // the robust kernel's width now (adapted after full rounds)
   // The optimiser as it was before the newest loop closure, until that one passed the gate.
