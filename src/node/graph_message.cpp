@@ -36,7 +36,7 @@ PoseGraph graphMessage(const Pipeline& pipeline, const Snapshot& snapshot, const
   msg.header.stamp = snapshot.newest_stamp;
   msg.epoch = snapshot.epoch;
   msg.chi2 = snapshot.chi2;
-  msg.planar = false;  // planar mode (being built on main): set from the pipeline's option once merged
+  msg.planar = pipeline.options().planar;
   const toro::PoseGraph& g = pipeline.graph();
   const auto& records = pipeline.keyframes().records();
   msg.nodes.reserve(records.size());
@@ -64,11 +64,14 @@ PoseGraph graphMessage(const Pipeline& pipeline, const Snapshot& snapshot, const
 
 geometry_msgs::PoseWithCovarianceStamped correctedPose(const toro::Pose3& map_T_odom,
                                                        const nav_msgs::Odometry& odom,
-                                                       const std::string& map_frame) {
+                                                       const std::string& map_frame, bool planar) {
   geometry_msgs::PoseWithCovarianceStamped out;
   out.header.stamp = odom.header.stamp;
   out.header.frame_id = map_frame;
-  out.pose.pose = poseToMsg(map_T_odom * poseFromMsg(odom.pose.pose));
+  // In planar mode map_T_odom joins planar poses: the odometry pose is projected as the pipeline
+  // projects it, so the corrected pose is planar too.
+  out.pose.pose =
+      poseToMsg(map_T_odom * (planar ? planarPoseFromMsg(odom.pose.pose) : poseFromMsg(odom.pose.pose)));
   toro::Matrix6 rotate = toro::Matrix6::Zero();
   const toro::Matrix3 r = map_T_odom.rotationMatrix();
   rotate.block<3, 3>(0, 0) = r;

@@ -52,7 +52,7 @@ void MapCorrectorNode::onOdometryArrived(const nav_msgs::Odometry::ConstPtr& msg
   if (!msg->header.frame_id.empty() &&
       withoutLeadingSlash(msg->header.frame_id) != withoutLeadingSlash(o->odom_frame))
     return;
-  pose_pub_.publish(correctedPose(s->map_T_odom, *msg, o->map_frame));
+  pose_pub_.publish(correctedPose(s->map_T_odom, *msg, o->map_frame, o->pipeline.planar));
   std::lock_guard<std::mutex> lock(pose_mutex_);
   pose_odometry_ = msg;
   pose_map_T_odom_ = s->map_T_odom;
@@ -100,7 +100,7 @@ void MapCorrectorNode::visualizationTimerCallback(const ros::WallTimerEvent&) {
     odometry = pose_odometry_;
     pose_map_T_odom_ = s->map_T_odom;
   }
-  pose_pub_.publish(correctedPose(s->map_T_odom, *odometry, o->map_frame));
+  pose_pub_.publish(correctedPose(s->map_T_odom, *odometry, o->map_frame, o->pipeline.planar));
 }
 
 void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& status) {

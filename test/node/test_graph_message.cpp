@@ -107,6 +107,49 @@ TEST(GraphMessage, EqualsTheSavedGraph) {
   EXPECT_NEAR(applied.covariance[1], 0.0, 1e-15);
 }
 
+TEST(GraphMessage, PlanarModeGivesAPlanarGraphAndPose) {
+  const auto scenario = makeDriftingSquare();
+  PipelineOptions o = toro_ros::testing::baseTestOptions();
+  o.planar = true;
+  Pipeline p(o);
+  // The floor is uneven: odometry leaves the plane by up to 0.3 m and 0.1 rad.
+  for (std::size_t i = 0; i < scenario.odometry.size(); ++i) {
+    nav_msgs::Odometry m = scenario.odometry[i];
+    m.pose.pose.position.z += 0.3 * std::sin(0.05 * static_cast<double>(i));
+    const toro::Pose3 tilted =
+        poseFromMsg(m.pose.pose) * toro::Pose3::fromRollPitchYaw(0, 0, 0, 0.1 * std::cos(0.07 * i), 0.05, 0);
+    m.pose.pose = poseToMsg(tilted);
+    p.handleOdometry(m);
+  }
+  p.handleLoopClosure(trueLoopClosure(scenario, 0, 80));
+  while (p.runScheduledOptimization()) {
+  }
+  const PoseGraph msg = graphMessage(p, *p.makeSnapshot(), "map");
+  EXPECT_TRUE(msg.planar);
+  ASSERT_GT(msg.nodes.size(), 10u);
+  for (const PoseGraphNode& n : msg.nodes) {
+    EXPECT_EQ(n.pose.position.z, 0.0);
+    EXPECT_NEAR(n.pose.orientation.x, 0.0, 1e-12);
+    EXPECT_NEAR(n.pose.orientation.y, 0.0, 1e-12);
+  }
+  // The corrected pose of a tilted, raised odometry message is planar too, and 3D without planar.
+  const nav_msgs::Odometry& last = scenario.odometry.back();
+  nav_msgs::Odometry raised = last;
+  raised.pose.pose.position.z = 0.4;
+  raised.pose.pose =
+      poseToMsg(poseFromMsg(raised.pose.pose) * toro::Pose3::fromRollPitchYaw(0, 0, 0, 0.2, 0.1, 0));
+  const toro::Pose3 map_T_odom = p.makeSnapshot()->map_T_odom;
+  const geometry_msgs::PoseWithCovarianceStamped planar = correctedPose(map_T_odom, raised, "map", true);
+  EXPECT_EQ(planar.pose.pose.position.z, 0.0);
+  EXPECT_NEAR(planar.pose.pose.orientation.x, 0.0, 1e-12);
+  EXPECT_NEAR(planar.pose.pose.orientation.y, 0.0, 1e-12);
+  const geometry_msgs::PoseWithCovarianceStamped spatial = correctedPose(map_T_odom, raised, "map", false);
+  EXPECT_NEAR(spatial.pose.pose.position.z, 0.4, 1e-9);
+  // Both agree in the plane.
+  EXPECT_NEAR(planar.pose.pose.position.x, spatial.pose.pose.position.x, 1e-9);
+  EXPECT_NEAR(planar.pose.pose.position.y, spatial.pose.pose.position.y, 1e-9);
+}
+
 TEST(GraphMessage, EmptyPipelineGivesAnEmptyGraph) {
   Pipeline p(PipelineOptions{});
   const PoseGraph msg = graphMessage(p, *p.makeSnapshot(), "world");

@@ -24,9 +24,10 @@ PoseGraph graphMessage(const Pipeline& pipeline, const Snapshot& snapshot, const
 // `map_frame`.  The covariance is the message's pose covariance rotated into the map frame
 // (blockdiag(R, R) Sigma blockdiag(R, R)^T with R the rotation of map_T_odom): the odometry
 // source's uncertainty, without the uncertainty of map_T_odom itself (TORO computes no marginal
-// covariances).
+// covariances).  `planar` (the pipeline's planar mode): the odometry pose is projected onto the
+// plane first, so the result is planar (its covariance's z, roll, pitch rows stay as sent).
 geometry_msgs::PoseWithCovarianceStamped correctedPose(const toro::Pose3& map_T_odom,
                                                        const nav_msgs::Odometry& odom,
-                                                       const std::string& map_frame);
+                                                       const std::string& map_frame, bool planar = false);
 
 }  // namespace toro_ros
