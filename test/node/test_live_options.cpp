@@ -116,6 +116,39 @@ TEST(ApplyLiveOptions, GateThresholdFollowsConfidenceAndVarianceFactor) {
   EXPECT_EQ(p.gateThreshold(), std::numeric_limits<double>::infinity());
 }
 
+TEST(ApplyLiveOptions, PlanarModeAndTheLearntCovarianceConventionSurvive) {
+  const auto scenario = makeDriftingSquare();
+  PipelineOptions o = toro_ros::testing::baseTestOptions();
+  o.planar = true;
+  o.keyframer.covariance_mode = OdometryCovarianceMode::kAuto;
+  o.loop_closure_gate_confidence = 0.99;
+  Pipeline p(o);
+  const std::size_t half = scenario.odometry.size() / 2;
+  // A constant covariance (diff_drive_controller style) on an uneven floor.
+  const auto message = [&](std::size_t i) {
+    nav_msgs::Odometry m = scenario.odometry[i];
+    m.pose.pose.position.z += 0.2 * std::sin(0.1 * static_cast<double>(i));
+    for (int a = 0; a < 6; ++a) m.pose.covariance[a * 7] = a == 2 || a == 3 || a == 4 ? 1e6 : 1e-3;
+    return m;
+  };
+  for (std::size_t i = 0; i < half; ++i) p.handleOdometry(message(i));
+  const std::string rule = p.status().odometry_covariance_rule;
+  ASSERT_NE(rule.find("the same in every message"), std::string::npos) << rule;
+  PipelineOptions wider = p.options();
+  wider.keyframer.distance_m = 1.0;
+  wider.loop_closure_gate_confidence = 0.95;
+  ASSERT_EQ(p.applyLiveOptions(wider), "");
+  EXPECT_TRUE(p.options().planar);
+  // The gate counts the plane's 3 degrees of freedom, as at start-up.
+  EXPECT_DOUBLE_EQ(p.gateThreshold(), toro::chiSquareQuantile(0.95, 3));
+  for (std::size_t i = half; i < scenario.odometry.size(); ++i) p.handleOdometry(message(i));
+  // The convention seen before the change is kept (no step made with the defaults after it) and
+  // the keyframes after it are still planar.
+  EXPECT_EQ(p.status().odometry_covariance_rule.substr(0, 40), rule.substr(0, 40));
+  EXPECT_EQ(p.status().counters.odometry_steps_default, 0u);
+  for (const toro::Node& n : p.graph().nodes()) EXPECT_EQ(n.pose.translation().z(), 0.0);
+}
+
 TEST(ApplyLiveOptions, ARoundInProgressEndsWithinTheNewNumberOfPasses) {
   const auto scenario = makeDriftingSquare();
   PipelineOptions o = toro_ros::testing::baseTestOptions();
