@@ -22,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_timing.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
@@ -32,17 +33,8 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using namespace toro;
 
-double cpuSeconds() {
-  timespec t{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
+using toro_bench::cpuSeconds;
+using toro_bench::median;
 
 std::vector<std::string> split(const std::string& s) {
   std::vector<std::string> out;
@@ -62,7 +54,7 @@ struct Settings {
   int runs = 3;
   std::uint32_t seed = 1;
   InitialGuess guess = InitialGuess::kChainOdometry;
-  std::string dump;  // directory to write each graph with outliers to (empty: none)
+  std::string dump;        // directory to write each graph with outliers to (empty: none)
   bool dump_only = false;  // --dump-only: write the graphs (and the clean optimum), solve nothing else
 };
 
@@ -96,12 +88,18 @@ struct Dataset {
 };
 
 const Dataset kDatasets[] = {
-    {"sphere2500", "sphere2500.g2o"},       {"parking-garage", "parking-garage.g2o"},
-    {"manhattan", "2d/manhattan.g2o"},      {"intel", "2d/intel.g2o"},
-    {"city10000", "2d/city10000.g2o"},      {"CSAIL", "2d/CSAIL.g2o"},
-    {"MIT", "2d/MIT.g2o"},                  {"intel-vertigo", "2d/intel_g2o-vertigo.g2o"},
-    {"manhattanOlson3500", "2d/manhattanOlson3500.g2o"}, {"kitti_00", "2d/kitti_00.g2o"},
-    {"kitti_02", "2d/kitti_02.g2o"},        {"kitti_05", "2d/kitti_05.g2o"},
+    {"sphere2500", "sphere2500.g2o"},
+    {"parking-garage", "parking-garage.g2o"},
+    {"manhattan", "2d/manhattan.g2o"},
+    {"intel", "2d/intel.g2o"},
+    {"city10000", "2d/city10000.g2o"},
+    {"CSAIL", "2d/CSAIL.g2o"},
+    {"MIT", "2d/MIT.g2o"},
+    {"intel-vertigo", "2d/intel_g2o-vertigo.g2o"},
+    {"manhattanOlson3500", "2d/manhattanOlson3500.g2o"},
+    {"kitti_00", "2d/kitti_00.g2o"},
+    {"kitti_02", "2d/kitti_02.g2o"},
+    {"kitti_05", "2d/kitti_05.g2o"},
     {"ais2klinik", "2d/ais2klinik.g2o"},
 };
 
@@ -142,10 +140,12 @@ void runDataset(const Settings& s, const Dataset& d) {
   for (const Constraint& c : original.constraints()) right += isLoopClosure(c) ? 1 : 0;
   std::size_t clean_rejected = 0;
   for (std::size_t c = 0; c < original.numConstraints(); ++c)
-    if (isLoopClosure(original.constraints()[c]) && clean_robust.report.weights[c] < kRejectedWeight) ++clean_rejected;
-  std::printf("| %s | clean | 0 | %.4g | %zu / %zu | - | %.3f (%.3f) | 1 | chi2 %.6g vs %.6g (%+.2e) |\n", d.name,
-              alignedPositionRmse(clean_robust.graph, clean.graph), clean_rejected, right, clean_robust.wall,
-              clean_robust.cpu, robust_chi2, clean_chi2, (robust_chi2 - clean_chi2) / clean_chi2);
+    if (isLoopClosure(original.constraints()[c]) && clean_robust.report.weights[c] < kRejectedWeight)
+      ++clean_rejected;
+  std::printf("| %s | clean | 0 | %.4g | %zu / %zu | - | %.3f (%.3f) | 1 | chi2 %.6g vs %.6g (%+.2e) |\n",
+              d.name, alignedPositionRmse(clean_robust.graph, clean.graph), clean_rejected, right,
+              clean_robust.wall, clean_robust.cpu, robust_chi2, clean_chi2,
+              (robust_chi2 - clean_chi2) / clean_chi2);
   std::fflush(stdout);
   for (const std::string& kind_name : s.kinds) {
     const OutlierKind kind = *outlierKindFromString(kind_name);
@@ -163,23 +163,26 @@ void runDataset(const Settings& s, const Dataset& d) {
       const Timed result = solve(bad.graph, robust, s.runs);
       std::size_t rejected_right = 0, accepted_wrong = 0;
       for (std::size_t c = 0; c < original.numConstraints(); ++c)
-        if (isLoopClosure(original.constraints()[c]) && result.report.weights[c] < kRejectedWeight) ++rejected_right;
-      for (std::size_t c : bad.outliers) accepted_wrong += result.report.weights[c] >= kRejectedWeight ? 1 : 0;
-      std::printf("| %s | %s | %zu | %.4g | %zu / %zu (%.2f %%) | %zu | %.3f (%.3f) | %.2f | %zu+%zu it |\n", d.name,
-                  kind_name.c_str(), bad.outliers.size(), alignedPositionRmse(result.graph, clean.graph),
-                  rejected_right, right, right ? 100.0 * rejected_right / right : 0.0, accepted_wrong, result.wall,
-                  result.cpu, result.wall / clean.wall, result.report.toro_iterations,
-                  result.report.finish.iterations);
+        if (isLoopClosure(original.constraints()[c]) && result.report.weights[c] < kRejectedWeight)
+          ++rejected_right;
+      for (std::size_t c : bad.outliers)
+        accepted_wrong += result.report.weights[c] >= kRejectedWeight ? 1 : 0;
+      std::printf("| %s | %s | %zu | %.4g | %zu / %zu (%.2f %%) | %zu | %.3f (%.3f) | %.2f | %zu+%zu it |\n",
+                  d.name, kind_name.c_str(), bad.outliers.size(),
+                  alignedPositionRmse(result.graph, clean.graph), rejected_right, right,
+                  right ? 100.0 * rejected_right / right : 0.0, accepted_wrong, result.wall, result.cpu,
+                  result.wall / clean.wall, result.report.toro_iterations, result.report.finish.iterations);
       std::fflush(stdout);
     }
   }
 }
 
 int usage() {
-  std::fprintf(stderr,
-               "usage: bench_robust [--datasets DIR] [--only A,B] [--kinds random,local,grouped] [--counts 100,500]\n"
-               "                    [--grouped-counts 100] [--kernel dcs|cauchy|huber] [--width W] [--runs N]\n"
-               "                    [--seed S] [--guess odometry|chain] [--dump DIR [--dump-only]]\n");
+  std::fprintf(
+      stderr,
+      "usage: bench_robust [--datasets DIR] [--only A,B] [--kinds random,local,grouped] [--counts 100,500]\n"
+      "                    [--grouped-counts 100] [--kernel dcs|cauchy|huber] [--width W] [--runs N]\n"
+      "                    [--seed S] [--guess odometry|chain] [--dump DIR [--dump-only]]\n");
   return 2;
 }
 
@@ -195,9 +198,12 @@ int main(int argc, char** argv) {
     }
     if (i + 1 >= argc) return usage();
     const std::string v = argv[++i];
-    if (a == "--datasets") s.datasets = v;
-    else if (a == "--only") s.only = split(v);
-    else if (a == "--kinds") s.kinds = split(v);
+    if (a == "--datasets")
+      s.datasets = v;
+    else if (a == "--only")
+      s.only = split(v);
+    else if (a == "--kinds")
+      s.kinds = split(v);
     else if (a == "--counts" || a == "--grouped-counts") {
       std::vector<std::size_t> c;
       for (const std::string& x : split(v)) c.push_back(std::stoul(x));
@@ -206,19 +212,27 @@ int main(int argc, char** argv) {
       const auto k = robustKernelFromString(v);
       if (!k) return usage();
       s.robust.kernel = *k;
-    } else if (a == "--width") s.robust.width = std::stod(v);
-    else if (a == "--runs") s.runs = std::stoi(v);
-    else if (a == "--dump") s.dump = v;
-    else if (a == "--seed") s.seed = static_cast<std::uint32_t>(std::stoul(v));
-    else if (a == "--guess") s.guess = v == "chain" ? InitialGuess::kChainOnTree : InitialGuess::kChainOdometry;
-    else return usage();
+    } else if (a == "--width")
+      s.robust.width = std::stod(v);
+    else if (a == "--runs")
+      s.runs = std::stoi(v);
+    else if (a == "--dump")
+      s.dump = v;
+    else if (a == "--seed")
+      s.seed = static_cast<std::uint32_t>(std::stoul(v));
+    else if (a == "--guess")
+      s.guess = v == "chain" ? InitialGuess::kChainOnTree : InitialGuess::kChainOdometry;
+    else
+      return usage();
   }
   for (const std::string& k : s.kinds)
     if (!outlierKindFromString(k)) return usage();
   limitSolverThreads(1);  // as toro_optimize does (bench/finish_results.md)
-  std::printf("kernel %s, width %g, seed %u, runs %d\n\n", robustKernelName(s.robust.kernel), s.robust.width, s.seed,
-              s.runs);
-  std::printf("| dataset | outliers | count | RMSE vs clean optimum (m) | right rejected | wrong accepted | wall (cpu) s | x clean | note |\n");
+  std::printf("kernel %s, width %g, seed %u, runs %d\n\n", robustKernelName(s.robust.kernel), s.robust.width,
+              s.seed, s.runs);
+  std::printf(
+      "| dataset | outliers | count | RMSE vs clean optimum (m) | right rejected | wrong accepted | wall "
+      "(cpu) s | x clean | note |\n");
   std::printf("| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n");
   for (const Dataset& d : kDatasets) {
     if (!s.only.empty() && std::find(s.only.begin(), s.only.end(), d.name) == s.only.end()) continue;

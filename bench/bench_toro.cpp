@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "bench_report.h"
+#include "bench_timing.h"
 #include "synthetic_graph.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
@@ -46,18 +47,8 @@ double secondsBetween(Clock::time_point a, Clock::time_point b) {
 
 // CPU time of this (single-threaded) process: unlike wall time it hardly grows when other jobs
 // compete for the cores, so the report shows both.
-double cpuSeconds() {
-  timespec t{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
+using toro_bench::cpuSeconds;
+using toro_bench::median;
 
 // ------------------------------------------------------------------------------------------------
 // Command line

@@ -6,14 +6,6 @@ namespace toro {
 
 namespace {
 
-Matrix3 skew(const Vector3& v) {
-  Matrix3 m;
-  m << 0.0, -v.z(), v.y(),  //
-      v.z(), 0.0, -v.x(),   //
-      -v.y(), v.x(), 0.0;
-  return m;
-}
-
 // D = Z^-1 X_i^-1 X_j with its quaternion flipped to w >= 0 (the g2o error's representative).
 Pose3 residualPose(const Pose3& x_i, const Pose3& x_j, const Pose3& z, Quaternion* q) {
   const Pose3 d = z.inverse() * (x_i.inverse() * x_j);

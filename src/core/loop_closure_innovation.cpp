@@ -8,22 +8,6 @@ namespace toro {
 
 namespace {
 
-Matrix3 skew(const Vector3& v) {
-  Matrix3 m;
-  m << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
-  return m;
-}
-
-// Adjoint of an SE(3) pose for twists ordered (translation, rotation).
-Matrix6 adjoint(const Pose3& t) {
-  Matrix6 a = Matrix6::Zero();
-  const Matrix3 r = t.rotationMatrix();
-  a.topLeftCorner<3, 3>() = r;
-  a.topRightCorner<3, 3>() = skew(t.translation()) * r;
-  a.bottomRightCorner<3, 3>() = r;
-  return a;
-}
-
 // The path's covariance is taken this many times larger than the declared one: odometry
 // covariances leave out the systematic errors (wheel radius, slip, a yaw bias) that dominate real
 // drift, so a right loop closure after a long lap sits at 3 to 4 declared standard deviations

@@ -8,22 +8,6 @@ namespace toro {
 
 namespace {
 
-Matrix3 skew(const Vector3& v) {
-  Matrix3 m;
-  m << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
-  return m;
-}
-
-// Adjoint of an SE(3) pose for twists ordered (translation, rotation).
-Matrix6 adjoint(const Pose3& t) {
-  Matrix6 a = Matrix6::Zero();
-  const Matrix3 r = t.rotationMatrix();
-  a.topLeftCorner<3, 3>() = r;
-  a.topRightCorner<3, 3>() = skew(t.translation()) * r;
-  a.bottomRightCorner<3, 3>() = r;
-  return a;
-}
-
 // Covariance (angle units) of a constraint's measurement; zero if its information is singular.
 Matrix6 covarianceOf(const Matrix6& information) {
   const Eigen::LDLT<Matrix6> ldlt(quaternionToAngleUnits(information));
@@ -56,7 +40,8 @@ OdometryForest buildForest(const PoseGraph& graph) {
   }
   std::vector<std::size_t> by_id(n);
   for (std::size_t v = 0; v < n; ++v) by_id[v] = v;
-  std::sort(by_id.begin(), by_id.end(), [&](std::size_t a, std::size_t b) { return graph.node(a).id < graph.node(b).id; });
+  std::sort(by_id.begin(), by_id.end(),
+            [&](std::size_t a, std::size_t b) { return graph.node(a).id < graph.node(b).id; });
   std::deque<std::size_t> queue;
   for (std::size_t r : by_id) {
     if (f.root[r] != kNone) continue;
@@ -105,7 +90,8 @@ std::vector<double> odometryInnovationChi2(const PoseGraph& graph) {
     const std::size_t i = graph.indexOf(k.from), j = graph.indexOf(k.to);
     if (forest.root[i] != forest.root[j]) continue;
     const std::size_t top = commonAncestor(forest, i, j);
-    const Matrix6 world = forest.world_covariance[i] + forest.world_covariance[j] - 2.0 * forest.world_covariance[top];
+    const Matrix6 world =
+        forest.world_covariance[i] + forest.world_covariance[j] - 2.0 * forest.world_covariance[top];
     const Pose3& xi = graph.node(i).pose;
     const Pose3& xj = graph.node(j).pose;
     const Matrix6 a = adjoint(xj.inverse());

@@ -83,9 +83,9 @@ class LmRun {
   // regains weight, so the caller can rebuild the problem with it in the factorisation.
   LmRun(PoseGraph& graph, const FinishOptions& options, bool end_when_regained = false)
       : options_(options),
-        end_when_regained_(end_when_regained),
         problem_(graph, options.linear_solver, options.robust,
-                 options.robust.enabled() ? options.robust_set_aside_weight : 0.0) {}
+                 options.robust.enabled() ? options.robust_set_aside_weight : 0.0),
+        end_when_regained_(end_when_regained) {}
 
   FinishReport run(PoseGraph& graph, const FinishCallback& callback);
 
@@ -302,7 +302,8 @@ FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const 
 }  // namespace
 
 FinishReport LevenbergMarquardt::optimize(PoseGraph& graph, const FinishCallback& callback) const {
-  if (graph.dimension() == GraphDimension::k2D) return optimizeWith<detail::ModelSE2>(graph, options_, callback);
+  if (graph.dimension() == GraphDimension::k2D)
+    return optimizeWith<detail::ModelSE2>(graph, options_, callback);
   return optimizeWith<detail::ModelSE3>(graph, options_, callback);
 }
 

@@ -34,6 +34,20 @@ inline PipelineOptions baseTestOptions() {
   return o;
 }
 
+// baseTestOptions with a full round of 10 passes every 10 keyframes.
+inline PipelineOptions roundsEvery10Keyframes() {
+  PipelineOptions o = baseTestOptions();
+  o.optimization.full_every_keyframes = 10;
+  o.optimization.full_iterations = 10;
+  return o;
+}
+
+// Runs the pipeline's scheduled optimisation until nothing is left (bounded).
+inline void drain(Pipeline& p) {
+  for (int i = 0; i < 1000 && (p.runScheduledOptimization() || p.hasScheduledWork()); ++i) {
+  }
+}
+
 inline nav_msgs::Odometry odometryMsg(const ros::Time& stamp, const toro::Pose3& odom_T_base) {
   nav_msgs::Odometry m;
   m.header.stamp = stamp;

@@ -17,6 +17,7 @@
 #include "toro_ros/pipeline/pipeline.h"
 
 using namespace toro_ros;
+using toro_ros::testing::drain;
 using toro_ros::testing::DriftScenario;
 using toro_ros::testing::makeDriftingSquare;
 using toro_ros::testing::odometryMsg;
@@ -44,11 +45,6 @@ PipelineOptions options(const std::string& autosave_path = "", double period = 4
   o.persistence.autosave_path = autosave_path;
   o.persistence.autosave_period_sec = period;
   return o;
-}
-
-void drain(Pipeline& p) {
-  for (int i = 0; i < 1000 && (p.runScheduledOptimization() || p.hasScheduledWork()); ++i) {
-  }
 }
 
 std::uint64_t count(const Pipeline& p, const std::string& reason) {
@@ -101,7 +97,8 @@ TEST(Persistence, AutosaveEveryPeriodOfMessageTimeOnlyWhenTheGraphChanged) {
   // autosave() (the node's shutdown) writes only when something changed since the last save.
   EXPECT_EQ(p.autosave(), "");
   EXPECT_EQ(p.status().counters.autosaves, 9u);
-  p.handleOdometry(odometryMsg(end + ros::Duration(21.0), toro::Pose3::fromRollPitchYaw(1, 0, 0, 0, 0, 0) * here));
+  p.handleOdometry(
+      odometryMsg(end + ros::Duration(21.0), toro::Pose3::fromRollPitchYaw(1, 0, 0, 0, 0, 0) * here));
   EXPECT_EQ(p.autosave(), "");
   EXPECT_EQ(p.status().counters.autosaves, 10u);
   Pipeline r(options());
@@ -119,8 +116,9 @@ TEST(Persistence, AutosaveFailureIsCountedAndWarnedAndTheRunGoesOn) {
   EXPECT_GE(p.status().counters.autosave_failures, 5u);  // every 2 s of 20 s (the graph always grew)
   EXPECT_EQ(p.status().counters.autosaves, 0u);
   EXPECT_GT(p.keyframes().size(), 20u);
-  const auto failed = std::find_if(warnings.begin(), warnings.end(),
-                                   [](const std::string& w) { return w.find("autosave failed") != std::string::npos; });
+  const auto failed = std::find_if(warnings.begin(), warnings.end(), [](const std::string& w) {
+    return w.find("autosave failed") != std::string::npos;
+  });
   ASSERT_NE(failed, warnings.end());
   EXPECT_NE(failed->find(path), std::string::npos) << *failed;
   EXPECT_NE(p.autosave(), "");
@@ -190,7 +188,9 @@ TEST(Persistence, ResumeAfterAKillMatchesTheUninterruptedRun) {
     // Poses of the keyframes both runs have (same stamps) agree.
     double worst = 0;
     for (std::size_t i = 0; i < loaded; ++i)
-      worst = std::max(worst, (resumed.graph().node(i).pose.translation() - whole.graph().node(i).pose.translation()).norm());
+      worst = std::max(
+          worst,
+          (resumed.graph().node(i).pose.translation() - whole.graph().node(i).pose.translation()).norm());
     std::printf("largest position difference over the %zu saved keyframes: %.4f m\n", loaded, worst);
     EXPECT_LT(worst, 0.15);
   }
@@ -250,7 +250,8 @@ TEST(Persistence, LastPoseJoinsANewOdometryFrameAtTheNewestSavedPose) {
   EXPECT_NEAR(link.information(0, 0), 1.0 / 0.25, 1e-9);
   // Two metres forward in the new frame: keyframes ahead of the saved pose by their new odometry.
   for (int i = 1; i <= 20; ++i)
-    q.handleOdometry(odometryMsg(t0 + ros::Duration(0.1 * i), toro::Pose3::fromRollPitchYaw(0.1 * i, 0, 0, 0, 0, 0)));
+    q.handleOdometry(
+        odometryMsg(t0 + ros::Duration(0.1 * i), toro::Pose3::fromRollPitchYaw(0.1 * i, 0, 0, 0, 0, 0)));
   ASSERT_GE(q.keyframes().newest().id, saved_id + 4);
   const toro::Pose3 ahead = q.keyframes().newest().odom_T_base;
   EXPECT_GT(ahead.translation().x(), 1.5);

@@ -11,6 +11,7 @@
 #include "toro_ros/pipeline/pipeline.h"
 
 using namespace toro_ros;
+using toro_ros::testing::drain;
 using toro_ros::testing::DriftScenario;
 using toro_ros::testing::makeDriftingSquare;
 using toro_ros::testing::odometryMsg;
@@ -18,17 +19,7 @@ using toro_ros::testing::trueLoopClosure;
 
 namespace {
 
-PipelineOptions options() {
-  PipelineOptions o = toro_ros::testing::baseTestOptions();
-  o.optimization.full_every_keyframes = 10;
-  o.optimization.full_iterations = 10;
-  return o;
-}
-
-void drain(Pipeline& p) {
-  for (int i = 0; i < 1000 && (p.runScheduledOptimization() || p.hasScheduledWork()); ++i) {
-  }
-}
+PipelineOptions options() { return toro_ros::testing::roundsEvery10Keyframes(); }
 
 double positionError(const Snapshot& s, const toro::Pose3& truth) {
   return (s.keyframes.back().map_T_base.translation() - truth.translation()).norm();

@@ -19,6 +19,7 @@
 #include "toro_ros/pipeline/pipeline.h"
 
 using namespace toro_ros;
+using toro_ros::testing::drain;
 using toro_ros::testing::DriftScenario;
 using toro_ros::testing::makeDriftingSquare;
 using toro_ros::testing::trueLoopClosure;
@@ -71,11 +72,6 @@ PipelineOptions planarOptions(bool planar) {
   o.optimization.full_iterations = 10;
   o.planar = planar;
   return o;
-}
-
-void drain(Pipeline& p) {
-  for (int i = 0; i < 1000 && (p.runScheduledOptimization() || p.hasScheduledWork()); ++i) {
-  }
 }
 
 // Feeds the scenario in stamp order, each loop closure right after the odometry it names.

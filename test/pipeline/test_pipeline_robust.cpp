@@ -10,23 +10,14 @@
 #include "toro_ros/pipeline/pipeline.h"
 
 using namespace toro_ros;
+using toro_ros::testing::drain;
 using toro_ros::testing::DriftScenario;
 using toro_ros::testing::makeDriftingSquare;
 using toro_ros::testing::trueLoopClosure;
 
 namespace {
 
-PipelineOptions options() {
-  PipelineOptions o = toro_ros::testing::baseTestOptions();
-  o.optimization.full_every_keyframes = 10;
-  o.optimization.full_iterations = 10;
-  return o;
-}
-
-void drain(Pipeline& p) {
-  for (int i = 0; i < 1000 && (p.runScheduledOptimization() || p.hasScheduledWork()); ++i) {
-  }
-}
+PipelineOptions options() { return toro_ros::testing::roundsEvery10Keyframes(); }
 
 // Samples where the square's corners are passed in lap `lap` (0-based): side s ends at sample
 // (s + 1) * (40 + 10) in makeDriftingSquare's defaults (40 straight steps, 10 turning).
@@ -36,7 +27,8 @@ std::size_t corner(int lap, int side) { return static_cast<std::size_t>((4 * lap
 double largestMove(const Snapshot& a, const Snapshot& b) {
   double d = 0.0;
   for (std::size_t i = 0; i < std::min(a.keyframes.size(), b.keyframes.size()); ++i)
-    d = std::max(d, (a.keyframes[i].map_T_base.translation() - b.keyframes[i].map_T_base.translation()).norm());
+    d = std::max(d,
+                 (a.keyframes[i].map_T_base.translation() - b.keyframes[i].map_T_base.translation()).norm());
   return d;
 }
 
@@ -49,9 +41,11 @@ double rmsToTruth(const Pipeline& p, const DriftScenario& sc, const Snapshot& s)
   const auto& records = p.keyframes().records();
   for (std::size_t i = 0; i < sc.odometry.size(); ++i) {
     const ros::Time t = sc.odometry[i].header.stamp;
-    while (kf + 1 < records.size() && (records[kf + 1].stamp - t).toSec() <= (t - records[kf].stamp).toSec()) ++kf;
+    while (kf + 1 < records.size() && (records[kf + 1].stamp - t).toSec() <= (t - records[kf].stamp).toSec())
+      ++kf;
     const toro::Pose3 odom = poseFromMsg(sc.odometry[i].pose.pose);
-    const toro::Pose3 corrected = s.keyframes[kf].map_T_base * toro::relativePose(records[kf].odom_T_base, odom);
+    const toro::Pose3 corrected =
+        s.keyframes[kf].map_T_base * toro::relativePose(records[kf].odom_T_base, odom);
     sum += (corrected.translation() - sc.truth[i].translation()).squaredNorm();
   }
   return std::sqrt(sum / static_cast<double>(sc.odometry.size()));
@@ -110,8 +104,9 @@ TEST(PipelineRobust, WrongLoopClosureFirstRightOnesLaterEndsLikeTheCleanRun) {
   const Drive clean = drive(false, options());
   const Drive with_wrong = drive(true, options());
 
-  std::cout << "RMS against truth: clean " << clean.rms << " m, with the wrong loop closure " << with_wrong.rms
-            << " m; largest move when it arrived " << with_wrong.largest_move_at_wrong << " m\n";
+  std::cout << "RMS against truth: clean " << clean.rms << " m, with the wrong loop closure "
+            << with_wrong.rms << " m; largest move when it arrived " << with_wrong.largest_move_at_wrong
+            << " m\n";
   EXPECT_EQ(clean.down_weighted, 0u);
   // The wrong one bent nothing when it came, ends down-weighted, and the map ends as without it.
   EXPECT_LT(with_wrong.largest_move_at_wrong, 0.05);

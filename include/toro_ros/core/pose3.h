@@ -76,6 +76,26 @@ inline Pose3 relativePose(const Pose3& world_T_a, const Pose3& world_T_b) {
   return world_T_a.inverse() * world_T_b;
 }
 
+// The cross-product matrix: skew(a) * b == a.cross(b).
+inline Matrix3 skew(const Vector3& v) {
+  Matrix3 m;
+  m << 0.0, -v.z(), v.y(),  //
+      v.z(), 0.0, -v.x(),   //
+      -v.y(), v.x(), 0.0;
+  return m;
+}
+
+// Adjoint of a pose for twists ordered (translation, rotation): carries a covariance of a frame's
+// pose error into the frame t maps it to, Ad(t) * Sigma * Ad(t)^T (first order).
+inline Matrix6 adjoint(const Pose3& t) {
+  Matrix6 a = Matrix6::Zero();
+  const Matrix3 r = t.rotationMatrix();
+  a.topLeftCorner<3, 3>() = r;
+  a.topRightCorner<3, 3>() = skew(t.translation()) * r;
+  a.bottomRightCorner<3, 3>() = r;
+  return a;
+}
+
 // Quaternion for a rotation vector, with a small-angle branch.
 Quaternion quaternionFromRotationVector(const Vector3& rotation_vector);
 // Rotation vector of a unit quaternion, taking the shorter way (angle in [0, pi]).
