@@ -1,5 +1,6 @@
 #include "toro_ros/pipeline/covariance_rules.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -41,7 +42,7 @@ Eigen::MatrixXd blockInformation(const toro::Matrix6& covariance, const std::vec
     stddev(a) = std::sqrt(clampedVariance(covariance(block[a], block[a])));
   }
   Eigen::MatrixXd correlation = Eigen::MatrixXd::Identity(n, n);
-  bool dropped = false, averaged = false;
+  bool dropped = false, averaged = false, clamped = false;
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
       const double ab = covariance(block[a], block[b]), ba = covariance(block[b], block[a]);
@@ -51,7 +52,16 @@ Eigen::MatrixXd blockInformation(const toro::Matrix6& covariance, const std::vec
       }
       const double scale = raw(a) * raw(b);
       if (std::abs(ab - ba) > kSymmetryTolerance * scale) averaged = true;
-      correlation(a, b) = correlation(b, a) = 0.5 * (ab + ba) / scale;
+      // Variances near the underflow limit (a fuzzer's 1e-320) make the ratio overflow: no
+      // correlation can be read from them.  One beyond +-1 is impossible: clamped, then repaired
+      // below with the rest (an unbounded one would survive the shrink's rounding).
+      const double c = 0.5 * (ab + ba) / scale;
+      if (!std::isfinite(c)) {
+        dropped = true;
+        continue;
+      }
+      if (std::abs(c) > 1.0) clamped = true;
+      correlation(a, b) = correlation(b, a) = std::max(-1.0, std::min(1.0, c));
     }
   const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(correlation, Eigen::EigenvaluesOnly);
   const double smallest = eigen.info() == Eigen::Success ? eigen.eigenvalues().minCoeff() : -1.0;
@@ -65,10 +75,11 @@ Eigen::MatrixXd blockInformation(const toro::Matrix6& covariance, const std::vec
     const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(n, n);
     correlation = (1.0 - alpha) * correlation + alpha * identity;
   }
-  if (dropped || averaged || shrunk) {
+  if (dropped || averaged || clamped || shrunk) {
     out->repaired = true;
     std::string why;
     if (dropped) why += "non-finite correlations dropped";
+    if (clamped) why += std::string(why.empty() ? "" : ", ") + "correlations beyond +-1 clamped";
     if (averaged) why += std::string(why.empty() ? "" : ", ") + "asymmetric correlations averaged";
     if (shrunk) why += std::string(why.empty() ? "" : ", ") + "correlations shrunk (not positive definite)";
     out->reason += std::string(out->reason.empty() ? "" : "; ") + why;

@@ -206,6 +206,26 @@ TEST(MsgConversion, ValidationNamesTheProblem) {
   EXPECT_EQ(validateLoopClosure(lc), "");
 }
 
+TEST(MsgConversion, DenormalVariancesWithHugeCorrelationsAreRepaired) {
+  // Found by fuzz_loop_closure: pitch and yaw variances near the underflow limit and a cross term
+  // of -9e207 made the correlation overflow to -inf and the information NaN.
+  toro::Matrix6 cov = toro::Matrix6::Zero();
+  cov(0, 0) = cov(1, 1) = 4e-4;
+  cov(3, 4) = 4.08e15;
+  cov(4, 4) = 2.53e-320;
+  cov(5, 0) = 4.08e15;
+  cov(5, 4) = -9.07e207;
+  cov(5, 5) = 5.24e-315;
+  const InformationResult r = informationFromCovariance(cov, DefaultStddev{});
+  ASSERT_TRUE(r.information.allFinite());
+  EXPECT_EQ(toro::checkInformation(r.information), "");
+  EXPECT_TRUE(r.repaired);
+  EXPECT_NE(r.reason.find("correlations"), std::string::npos) << r.reason;
+  // z and roll (zero variances) take the defaults; x, y keep theirs.
+  EXPECT_EQ(r.default_axes, 2);
+  EXPECT_NEAR(toro::quaternionToAngleUnits(r.information).inverse()(0, 0), 4e-4, 1e-9);
+}
+
 TEST(MsgConversion, AnyCovarianceGivesAPositiveDefiniteInformation) {
   // Random covariances with variances from 1e-12 to 1e12, random correlations (valid or not) and
   // NaN, infinite, zero and negative entries sprinkled in: the information is always finite,
@@ -214,7 +234,12 @@ TEST(MsgConversion, AnyCovarianceGivesAPositiveDefiniteInformation) {
   std::uniform_real_distribution<double> exponent(-12.0, 12.0), u(-1.0, 1.0), pick(0.0, 1.0);
   const double specials[] = {std::numeric_limits<double>::quiet_NaN(),
                              std::numeric_limits<double>::infinity(),
-                             -std::numeric_limits<double>::infinity(), 0.0, -1.0};
+                             -std::numeric_limits<double>::infinity(),
+                             0.0,
+                             -1.0,
+                             5e-320,  // denormal
+                             -9e207};
+  constexpr int kSpecials = sizeof(specials) / sizeof(specials[0]);
   for (int trial = 0; trial < 2000; ++trial) {
     toro::Matrix6 cov = toro::Matrix6::Zero();
     for (int i = 0; i < 6; ++i) cov(i, i) = std::pow(10.0, exponent(rng));
@@ -222,7 +247,8 @@ TEST(MsgConversion, AnyCovarianceGivesAPositiveDefiniteInformation) {
       for (int j = i + 1; j < 6; ++j) cov(i, j) = cov(j, i) = 1.2 * u(rng) * std::sqrt(cov(i, i) * cov(j, j));
     for (int k = 0; k < 3; ++k)
       if (pick(rng) < 0.2)
-        cov(static_cast<int>(6 * pick(rng)) % 6, static_cast<int>(6 * pick(rng)) % 6) = specials[trial % 5];
+        cov(static_cast<int>(6 * pick(rng)) % 6, static_cast<int>(6 * pick(rng)) % 6) =
+            specials[trial % kSpecials];
     const InformationResult r = informationFromCovariance(cov, DefaultStddev{});
     ASSERT_TRUE(r.information.allFinite()) << "trial " << trial;
     ASSERT_EQ(r.information, r.information.transpose()) << "trial " << trial;
