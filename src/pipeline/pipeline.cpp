@@ -151,7 +151,8 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
       withoutLeadingSlash(msg.header.frame_id) != withoutLeadingSlash(options_.odom_frame)) {
     ++counters_.odometry_refused;
     refuse("odometry: wrong frame", "odometry at " + stampString(stamp) + " is in frame '" +
-                                        msg.header.frame_id + "', odom_frame is '" + options_.odom_frame + "'");
+                                        msg.header.frame_id + "', odom_frame is '" + options_.odom_frame +
+                                        "'");
     return;
   }
   const OdometrySample sample{stamp,
@@ -243,6 +244,19 @@ void Pipeline::handleLoopClosure(const LoopClosure& msg) {
 }
 
 void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match) {
+  const toro::Matrix6 covariance = covarianceMatrix(msg.covariance);
+  const InformationResult info = informationFromCovariance(
+      options_.planar ? planarCovariance(covariance) : covariance, options_.loop_closure_default_stddev,
+      options_.loop_closure_unmeasured_variance);
+  if (std::all_of(info.axes.begin(), info.axes.end(),
+                  [](AxisReading a) { return a == AxisReading::kUnmeasured; })) {
+    MatchResult refused = match;
+    refused.reason = refusal::kNothingMeasured;
+    refused.detail = "every variance is at least loop_closure_unmeasured_variance (" +
+                     std::to_string(options_.loop_closure_unmeasured_variance) + "): it constrains nothing";
+    refuseLoopClosure(refused, msg);
+    return;
+  }
   // The same message twice (a bridge or recogniser that resends) would count one measurement
   // twice; two different measurements of the same pair are independent and both kept.
   if (!applied_messages_.insert(messageHash(msg)).second) {
@@ -252,10 +266,6 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
     refuseLoopClosure(refused, msg);
     return;
   }
-  const toro::Matrix6 covariance = covarianceMatrix(msg.covariance);
-  const InformationResult info =
-      informationFromCovariance(options_.planar ? planarCovariance(covariance) : covariance,
-                                options_.loop_closure_default_stddev, options_.loop_closure_unmeasured_variance);
   toro::Pose3 measurement = options_.planar ? planarPoseFromMsg(msg.from_T_to) : poseFromMsg(msg.from_T_to);
   if (msg.id_from < 0 || msg.id_to < 0) {
     // The message measures stamp_from_T_stamp_to; the constraint joins the matched keyframes.
@@ -381,7 +391,8 @@ void Pipeline::adaptRobustWidth() {
   const std::vector<double>& arrival = optimizer_.arrivalChi2();
   const std::vector<double>& weights = optimizer_.weights();
   for (std::size_t c = 0; c < arrival.size(); ++c)
-    if (is_loop_closure_[c] && arrival[c] >= 0.0 && weights[c] >= toro::kRejectedWeight) accepted.push_back(arrival[c]);
+    if (is_loop_closure_[c] && arrival[c] >= 0.0 && weights[c] >= toro::kRejectedWeight)
+      accepted.push_back(arrival[c]);
   if (accepted.size() < kMinLoopClosuresToAdaptWidth) return;
   // The median, not a high percentile: robust to the few wrong ones accepted before the width
   // could narrow, and meaningful from a handful of loop closures on.

@@ -30,7 +30,8 @@ struct Fixture {
   int next = 0;
   void drive(int messages) {
     for (int end = next + messages; next < end; ++next)
-      pipeline.handleOdometry(odometryMsg(stamp(next), toro::Pose3::fromRollPitchYaw(0.1 * next, 0, 0, 0, 0, 0)));
+      pipeline.handleOdometry(
+          odometryMsg(stamp(next), toro::Pose3::fromRollPitchYaw(0.1 * next, 0, 0, 0, 0, 0)));
   }
   static ros::Time stamp(int i) { return ros::Time(100.0 + 0.1 * i); }
   std::uint64_t count(const std::string& reason) const {
@@ -38,7 +39,10 @@ struct Fixture {
     const auto it = m.find(reason);
     return it == m.end() ? 0 : it->second;
   }
-  ~Fixture() { if (::testing::Test::HasFailure()) for (const std::string& w : warnings) std::printf("warning: %s\n", w.c_str()); }
+  ~Fixture() {
+    if (::testing::Test::HasFailure())
+      for (const std::string& w : warnings) std::printf("warning: %s\n", w.c_str());
+  }
   bool warned(const std::string& a, const std::string& b) const {
     for (const std::string& w : warnings)
       if (w.find(a) != std::string::npos && w.find(b) != std::string::npos) return true;
@@ -89,7 +93,8 @@ TEST(BadInput, UnusableOdometryCovarianceFallsBackToTheDefaultAndIsCounted) {
   Fixture f;
   f.drive(3);
   for (double bad : {kNaN, -1.0}) {
-    nav_msgs::Odometry m = odometryMsg(Fixture::stamp(f.next), toro::Pose3::fromRollPitchYaw(0.1 * f.next, 0, 0, 0, 0, 0));
+    nav_msgs::Odometry m =
+        odometryMsg(Fixture::stamp(f.next), toro::Pose3::fromRollPitchYaw(0.1 * f.next, 0, 0, 0, 0, 0));
     ++f.next;
     m.pose.covariance[0] = bad;
     f.pipeline.handleOdometry(m);
@@ -130,9 +135,9 @@ TEST(BadInput, LoopClosureCovariancesAreReadPerAxisAndCounted) {
   EXPECT_EQ(c.loop_closures_applied, 4u);
   EXPECT_EQ(c.loop_closures_refused, 0u);
   EXPECT_TRUE(c.refused_by_reason.empty());
-  EXPECT_EQ(c.loop_closures_default, 1u);          // all zero
-  EXPECT_EQ(c.loop_closures_partly_default, 1u);   // yaw
-  EXPECT_EQ(c.loop_closures_repaired, 1u);         // the asymmetric one, averaged
+  EXPECT_EQ(c.loop_closures_default, 1u);         // all zero
+  EXPECT_EQ(c.loop_closures_partly_default, 1u);  // yaw
+  EXPECT_EQ(c.loop_closures_repaired, 1u);        // the asymmetric one, averaged
   const toro::Matrix6 defaults = defaultInformation(options().loop_closure_default_stddev);
   const toro::PoseGraph& g = f.pipeline.graph();
   const std::size_t first = g.numConstraints() - 4;
@@ -141,8 +146,32 @@ TEST(BadInput, LoopClosureCovariancesAreReadPerAxisAndCounted) {
   EXPECT_NEAR(g.constraints()[first + 1].information(1, 1), 1 / (0.02 * 0.02), 1e-6);
   EXPECT_NEAR(g.constraints()[first + 3].information(5, 5), defaults(5, 5), 1e-9);
   EXPECT_NEAR(g.constraints()[first + 3].information(4, 4), 4 / (0.02 * 0.02), 1e-6);
-  EXPECT_NE(s.loop_closure_covariance_rule.find("unknown"), std::string::npos) << s.loop_closure_covariance_rule;
+  EXPECT_NE(s.loop_closure_covariance_rule.find("unknown"), std::string::npos)
+      << s.loop_closure_covariance_rule;
   EXPECT_TRUE(f.warned("loop closure covariance", "unknown"));
+}
+
+TEST(BadInput, ALoopClosureWithEveryAxisUnmeasuredIsRefusedWithTheReason) {
+  // Variance 1e6 (or infinity) on all six axes: it would constrain nothing, so it is refused and
+  // counted rather than applied with ~0 information; one measured axis is enough to apply it.
+  Fixture f;
+  f.drive(40);
+  LoopClosure nothing = loopClosure(0, 30);
+  nothing.covariance.fill(0.0);
+  for (int i = 0; i < 6; ++i) nothing.covariance[i * 7] = i == 5 ? kInf : 1e6;
+  const std::size_t constraints = f.pipeline.graph().numConstraints();
+  f.pipeline.handleLoopClosure(nothing);
+  EXPECT_EQ(f.count("loop closure: no measured axis"), 1u);
+  EXPECT_EQ(f.pipeline.graph().numConstraints(), constraints);
+  EXPECT_TRUE(f.warned("loop closure", "constrains nothing"));
+  LoopClosure yaw_only = nothing;
+  yaw_only.covariance[35] = 1e-4;
+  f.pipeline.handleLoopClosure(yaw_only);
+  EXPECT_EQ(f.pipeline.status().counters.loop_closures_applied, 1u);
+  EXPECT_EQ(f.pipeline.graph().numConstraints(), constraints + 1);
+  // The same message again after its refusal is refused for the same reason, not as a duplicate.
+  f.pipeline.handleLoopClosure(nothing);
+  EXPECT_EQ(f.count("loop closure: no measured axis"), 2u);
 }
 
 TEST(BadInput, NonFiniteLoopClosurePoseIsRefused) {
@@ -159,9 +188,9 @@ TEST(BadInput, NonFiniteLoopClosurePoseIsRefused) {
 TEST(BadInput, SelfLoopsAreRefusedTwoStampsNearOneKeyframeSpanTwo) {
   Fixture f;
   f.drive(40);
-  f.pipeline.handleLoopClosure(byIds(3, 3));                      // one id twice
-  f.pipeline.handleLoopClosure(loopClosure(30, 30));              // one stamp twice
-  LoopClosure near = loopClosure(0, 30);                          // two stamps, one keyframe
+  f.pipeline.handleLoopClosure(byIds(3, 3));          // one id twice
+  f.pipeline.handleLoopClosure(loopClosure(30, 30));  // one stamp twice
+  LoopClosure near = loopClosure(0, 30);              // two stamps, one keyframe
   near.stamp_from = f.pipeline.keyframes().records().at(3).stamp;
   near.stamp_to = near.stamp_from + ros::Duration(0.05);
   f.pipeline.handleLoopClosure(near);

@@ -84,6 +84,9 @@ constexpr const char* kPendingFull = "pending list full";
 constexpr const char* kReset = "dropped by reset";
 constexpr const char* kGraph = "refused by the graph";
 constexpr const char* kDuplicate = "duplicate message";
+// Every axis of its covariance unmeasured (loop_closure_unmeasured_variance or more): it would be
+// applied with ~0 information, moving nothing.
+constexpr const char* kNothingMeasured = "no measured axis";
 // Sent at or before the newest keyframe of a loaded map: already in it (a replay from the start).
 constexpr const char* kBeforeResume = "before the resumed map";
 }  // namespace refusal
