@@ -73,7 +73,6 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   constraint_rotation_info_.clear();
   constraint_translation_info_.clear();
   robust_weight_.clear();
-  in_preconditioner_.clear();
   arrival_chi2_.clear();
   preconditioned_weight_.clear();
   robust_.clear();
@@ -109,7 +108,6 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
   incident_[from_index_.back()].push_back(c);
   incident_[to_index_.back()].push_back(c);
   robust_weight_.push_back(1.0);
-  in_preconditioner_.push_back(0);
   arrival_chi2_.push_back(-1.0);
   preconditioned_weight_.push_back(1.0);
   robust_.push_back(options_.robust.enabled() && isLoopClosure(k) ? 1 : 0);
@@ -232,7 +230,6 @@ void TreeOptimizer::chainOdometryGuess() {
 void TreeOptimizer::addToPreconditioner(std::size_t c) {
   top_level_[c] = tree_.level(tree_.path(from_index_[c], to_index_[c], up_, down_));
   preconditioned_weight_[c] = robust_weight_[c];
-  in_preconditioner_[c] = 1;
   for (const auto* branch : {&up_, &down_}) {
     for (std::size_t v : *branch) {
       rotation_weight_[v] += constraint_rotation_info_[c];

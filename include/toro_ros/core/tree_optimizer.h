@@ -117,16 +117,6 @@ class TreeOptimizer {
   // Forgets what counts as "new" for iterateAffected() without a full pass.
   void clearAffected();
 
-  // The preconditioner: per node, the summed (robust-weighted) scalar information of every
-  // constraint whose tree path runs through the node's tree edge; and per constraint its own
-  // weighted share of it.  Rotational ones in the core's quaternion-vector units.
-  double nodeRotationStiffness(std::size_t node) const { return rotation_weight_[node]; }
-  double nodeTranslationStiffness(std::size_t node) const { return translation_weight_[node]; }
-  double constraintRotationStiffness(std::size_t c) const { return constraint_rotation_info_[c]; }
-  double constraintTranslationStiffness(std::size_t c) const { return constraint_translation_info_[c]; }
-  // Whether constraint c is already part of the preconditioner (set after its arrival).
-  bool inPreconditioner(std::size_t c) const { return c < in_preconditioner_.size() && in_preconditioner_[c]; }
-
   // Constraint indices at a node, and a constraint's dense endpoints (for path computations).
   const std::vector<std::size_t>& incident(std::size_t node) const { return incident_[node]; }
   std::size_t fromIndex(std::size_t c) const { return from_index_[c]; }
@@ -262,7 +252,6 @@ class TreeOptimizer {
   std::vector<double> robust_weight_;  // per constraint, 1 unless robust_
   std::vector<double> arrival_chi2_;   // per constraint, see arrivalChi2()
   std::vector<double> preconditioned_weight_;  // the weight whose share the preconditioner holds
-  std::vector<char> in_preconditioner_;        // per constraint: added to the preconditioner
   std::vector<char> robust_;           // per constraint: a loop closure weighted robustly
   // Constraints with unmeasured axes move only along their measured ones: the projectors live in
   // the group state (measured_axes), indexed from here (-1: every axis measured).
