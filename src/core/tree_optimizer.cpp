@@ -361,4 +361,21 @@ IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteratio
 
 void TreeOptimizer::clearAffected() { new_constraints_.clear(); }
 
+void TreeOptimizer::markAffected(std::size_t c) {
+  if (c >= graph_.numConstraints())
+    throw std::out_of_range("TreeOptimizer::markAffected: no constraint " + std::to_string(c));
+  new_constraints_.push_back(c);  // iterateAffected visits each affected constraint once
+}
+
+void TreeOptimizer::setPoses(const std::vector<Pose3>& poses) {
+  if (poses.size() != graph_.numNodes())
+    throw std::invalid_argument("TreeOptimizer::setPoses: " + std::to_string(poses.size()) + " poses for " +
+                                std::to_string(graph_.numNodes()) + " nodes");
+  for (std::size_t v = 0; v < poses.size(); ++v) graph_.setPoseAt(v, planar_ ? projectToPlane(poses[v]) : poses[v]);
+  parametersFromPoses();
+  // The poses are rebuilt from the parameters as after a pass, so both agree to the last bit and
+  // the group's own world state (SE(2)) follows.
+  recomputePoses();
+}
+
 }  // namespace toro

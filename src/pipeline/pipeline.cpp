@@ -17,26 +17,6 @@ namespace toro_ros {
 
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr int kMaxRecheckRounds = 10;
-// The robust width adapts once this many accepted loop closures give it a median, after every loop
-// closure while fewer than kEarlyLoopClosures were applied (senders whose covariances are far too
-// large must be caught before wrong loop closures bend the map), then after full rounds.
-constexpr std::size_t kMinLoopClosuresToAdaptWidth = 5;
-constexpr std::size_t kEarlyLoopClosures = 200;
-// The width narrows to this many times the median arrival innovation of the accepted loop closures:
-// right ones' residuals are heavy-tailed (largest / median up to ~200 on real data), wrong ones lie
-// 100 to 1e5 times above the median.
-constexpr double kMedianWidthFactor = 250.0;
-
-// Seconds of wall time spent in `f`; reported only, never used to decide anything.
-template <class F>
-double timed(F&& f) {
-  const auto t0 = std::chrono::steady_clock::now();
-  f();
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
 KeyframerOptions keyframerOptions(const PipelineOptions& o) {
   KeyframerOptions out = o.keyframer;
   out.planar = o.planar;
@@ -61,6 +41,13 @@ std::uint64_t messageHash(const LoopClosure& msg) {
   return h;
 }
 
+// The options, or std::invalid_argument saying what is wrong with them.
+const PipelineOptions& validated(const PipelineOptions& options) {
+  const std::string error = options.validate();
+  if (!error.empty()) throw std::invalid_argument("invalid pipeline options: " + error);
+  return options;
+}
+
 // tf2 ignores a leading slash ("/odom" is "odom").
 std::string withoutLeadingSlash(const std::string& frame) {
   return !frame.empty() && frame[0] == '/' ? frame.substr(1) : frame;
@@ -69,16 +56,6 @@ std::string withoutLeadingSlash(const std::string& frame) {
 }  // namespace
 
 std::string toString(toro::RobustKernel kernel) { return toro::robustKernelName(kernel); }
-
-std::string OptimizationOptions::validate() const {
-  if (!(std::isfinite(gamma) && gamma > 0)) return "optimization gamma must be > 0";
-  if (full_iterations < 0) return "optimization full_iterations must be >= 0";
-  if (full_every_keyframes < 0) return "optimization full_every_keyframes must be >= 0";
-  if (!(std::isfinite(full_every_sec) && full_every_sec >= 0))
-    return "optimization full_every_sec must be >= 0";
-  if (service_default_iterations <= 0) return "optimization service_default_iterations must be > 0";
-  return "";
-}
 
 std::string PipelineOptions::validate() const {
   for (const std::string& e : {keyframer.validate(), matcher.validate(),
@@ -98,20 +75,17 @@ std::string PipelineOptions::validate() const {
 }
 
 Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn, InfoSink info)
-    : options_(options),
+    : options_(validated(options)),
       warn_(std::move(warn)),
       info_(std::move(info)),
-      optimizer_(),
+      map_(options.optimization, options.robust, options.planar, gateThresholdFor(options), &counters_,
+           [this](const std::string& category, const std::string& detail) { refuse(category, detail); },
+           [this](const std::string& note) {
+             if (warn_) warn_(note);
+           }),
       keyframer_(keyframerOptions(options)),
       matcher_(options.matcher),
-      odometry_history_(options.odometry_history_sec),
-      last_chi2_(kNaN),
-      robust_width_(options.robust.width) {
-  const std::string error = options.validate();
-  if (!error.empty()) throw std::invalid_argument("invalid pipeline options: " + error);
-  optimizer_ = toro::TreeOptimizer(optimizerOptions());
-  gate_threshold_ = gateThresholdFor(options);
-}
+      odometry_history_(options.odometry_history_sec) {}
 
 double Pipeline::gateThresholdFor(const PipelineOptions& options) {
   // A loop closure's residual has 6 components (translation and rotation), 3 in the plane.
@@ -197,19 +171,15 @@ void Pipeline::appendKeyframe(const OdometrySample& sample, const std::optional<
   // A new keyframe continues from the corrected previous one, so the odometry constraint starts
   // with zero residual and the correction made so far carries over.
   const toro::Pose3 pose =
-      step ? optimizer_.graph().pose(keyframes_.newest().id) * step->previous_T_current : sample.odom_T_base;
-  const toro::NodeId previous = keyframes_.empty() ? -1 : keyframes_.newest().id;
-  optimizer_.addNode(id, pose);
+      step ? map_.graph().pose(keyframes_.newest().id) * step->previous_T_current : sample.odom_T_base;
+  std::optional<toro::Constraint> odometry;
+  if (step)
+    odometry = toro::Constraint{keyframes_.newest().id, id, step->previous_T_current,
+                                step->information.information, toro::ConstraintKind::kOdometry};
+  map_.addKeyframe(id, pose, sample.stamp, odometry);
   ++revision_;
   keyframes_.append(KeyframeRecord{id, sample.stamp, sample.odom_T_base, next_keyframe_after_gap_});
   next_keyframe_after_gap_ = false;
-  if (last_full_stamp_.isZero()) last_full_stamp_ = sample.stamp;
-  ++keyframes_since_full_;
-  if (!step) return;
-  toro::Constraint c{previous, id, step->previous_T_current, step->information.information,
-                     toro::ConstraintKind::kOdometry};
-  optimizer_.addConstraint(c);  // endpoints exist and the information is SPD by construction
-  is_loop_closure_.push_back(false);
 }
 
 void Pipeline::keyframeForStamps(const LoopClosure& msg) {
@@ -272,25 +242,18 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
     measurement = keyframeToStamp(match.from, msg.stamp_from) * measurement *
                   keyframeToStamp(match.to, msg.stamp_to).inverse();
   }
-  toro::Constraint c{match.from, match.to, measurement, info.information, toro::ConstraintKind::kLoopClosure};
-  if (gateEnabled()) beginGate(msg);
-  try {
-    optimizer_.addConstraint(c);
-  } catch (const toro::GraphError& e) {
-    before_gate_.reset();
+  const toro::Constraint c{match.from, match.to, measurement, info.information,
+                           toro::ConstraintKind::kLoopClosure};
+  const std::string objection = map_.addLoopClosure(c, msg.header.stamp);
+  if (!objection.empty()) {
     MatchResult refused = match;
     refused.reason = refusal::kGraph;
-    refused.detail = e.what();
+    refused.detail = objection;
     refuseLoopClosure(refused, msg);
     return;
   }
   countLoopClosureInformation(info);
-  is_loop_closure_.push_back(true);
   ++revision_;
-  ++counters_.loop_closures_applied;
-  affected_pending_ = true;
-  if (counters_.loop_closures_applied <= kEarlyLoopClosures) adaptRobustWidth();
-  ++loop_closures_since_full_;
 }
 
 void Pipeline::releasePending() {
@@ -303,146 +266,20 @@ void Pipeline::releasePending() {
   }
 }
 
-bool Pipeline::hasScheduledWork() const { return !paused_ && (affected_pending_ || full_passes_left_ > 0); }
+bool Pipeline::hasScheduledWork() const { return !paused_ && map_.hasScheduledWork(); }
 
-void Pipeline::runAffectedPass() {
-  last_optimization_sec_ = timed([&] { optimizer_.iterateAffected(1); });
-  ++revision_;
-  ++counters_.optimization_passes;
-  affected_pending_ = false;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+bool Pipeline::runScheduledOptimization() { return !paused_ && map_.runScheduledStep(newest_odometry_); }
+
+std::optional<FinishJob> Pipeline::takeFinishJob() {
+  if (paused_) return std::nullopt;
+  return map_.takeFinishJob(newest_odometry_);
 }
 
-void Pipeline::runFullPass() {
-  last_optimization_sec_ = timed([&] { optimizer_.iterate(); });
-  ++revision_;
-  ++counters_.optimization_passes;
-  // A full pass covers everything added so far.
-  optimizer_.clearAffected();
-  affected_pending_ = false;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
-}
-
-bool Pipeline::runScheduledOptimization() {
-  if (paused_ || optimizer_.graph().empty()) return false;
-  if (affected_pending_) {
-    runAffectedPass();
-    settleGate();
-    return true;
-  }
-  if (full_passes_left_ == 0 && loop_closures_since_full_ > 0 && options_.optimization.full_iterations > 0) {
-    const auto& o = options_.optimization;
-    const bool by_count = o.full_every_keyframes > 0 &&
-                          keyframes_since_full_ >= static_cast<std::size_t>(o.full_every_keyframes);
-    const bool by_time =
-        o.full_every_sec > 0 && (newest_odometry_ - last_full_stamp_).toSec() >= o.full_every_sec;
-    if (by_count || by_time) {
-      // Restart the learning-rate schedule: the graph changed since the last round, and a rate
-      // decayed over the whole run would leave new loop closures uncorrected.
-      optimizer_.setIteration(0);
-      full_passes_left_ = o.full_iterations;
-      loop_closures_since_full_ = 0;
-      keyframes_since_full_ = 0;
-      last_full_stamp_ = newest_odometry_;
-    }
-  }
-  if (full_passes_left_ == 0) return false;
-  --full_passes_left_;
-  runFullPass();
-  if (full_passes_left_ == 0) {
-    recheckLoopClosures();
-    adaptRobustWidth();
-  }
-  return true;
-}
-
-toro::TreeOptimizerOptions Pipeline::optimizerOptions() const {
-  toro::TreeOptimizerOptions out;
-  out.gamma = options_.optimization.gamma;
-  out.robust = options_.robust;
-  out.robust.width = robust_width_;
-  out.parameterization = options_.planar ? toro::Parameterization::kPlanar : toro::Parameterization::kSpatial;
-  return out;
-}
-
-void Pipeline::replaceGraph(const toro::PoseGraph& graph) {
-  // Replayed through the online path (addNode/addConstraint keep the given poses, as kFromGraph
-  // would) rather than setGraph: that is the path every live keyframe takes, and TreeOptimizer's
-  // online growth right after setGraph wrote out of bounds in the core at the time of writing
-  // (see the issue 4 report).
-  optimizer_ = toro::TreeOptimizer(optimizerOptions());
-  for (const toro::Node& n : graph.nodes()) optimizer_.addNode(n.id, n.pose);
-  for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
-    toro::Constraint k = graph.constraints()[c];
-    k.kind = c < is_loop_closure_.size() && is_loop_closure_[c] ? toro::ConstraintKind::kLoopClosure
-                                                                : toro::ConstraintKind::kOdometry;
-    optimizer_.addConstraint(k);
-  }
-  optimizer_.clearAffected();
-  ++revision_;
-}
-
-void Pipeline::adaptRobustWidth() {
-  if (!options_.robust.enabled() || !(options_.robust.adaptive_width_factor > 0.0)) return;
-  // The statistic that decides acceptance is each loop closure's innovation when it arrived, so
-  // the width follows those of the accepted ones (settled residuals are far smaller, and would
-  // narrow the width below what the next right loop closure needs after some drift).
-  std::vector<double> accepted;
-  const std::vector<double>& arrival = optimizer_.arrivalChi2();
-  const std::vector<double>& weights = optimizer_.weights();
-  for (std::size_t c = 0; c < arrival.size(); ++c)
-    if (is_loop_closure_[c] && arrival[c] >= 0.0 && weights[c] >= toro::kRejectedWeight)
-      accepted.push_back(arrival[c]);
-  if (accepted.size() < kMinLoopClosuresToAdaptWidth) return;
-  // The median, not a high percentile: robust to the few wrong ones accepted before the width
-  // could narrow, and meaningful from a handful of loop closures on.
-  const auto middle = accepted.begin() + static_cast<std::ptrdiff_t>(accepted.size() / 2);
-  std::nth_element(accepted.begin(), middle, accepted.end());
-  const double adapted = std::min(options_.robust.width, kMedianWidthFactor * *middle);
-  // Only a clear change is worth it (each one re-weights every loop closure).
-  if (!(adapted > 0.0) || (adapted > robust_width_ / 1.5 && adapted < robust_width_ * 1.5)) return;
-  robust_width_ = adapted;
-  optimizer_.setRobustWidth(adapted);
-  optimizer_.refreshWeights();
-  ++revision_;
-}
-
-std::vector<DownWeightedLoopClosure> Pipeline::downWeighted() const {
-  std::vector<DownWeightedLoopClosure> out;
-  const toro::PoseGraph& g = optimizer_.graph();
-  const std::vector<double>& w = optimizer_.weights();
-  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
-    if (!is_loop_closure_[c] || !(w[c] < toro::kRejectedWeight)) continue;
-    const toro::Constraint& k = g.constraints()[c];
-    out.push_back(DownWeightedLoopClosure{k.from, k.to, w[c], toro::constraintChi2(g, c)});
-  }
-  return out;
-}
-
-OptimizeResult Pipeline::finish(unsigned iterations) {
-  OptimizeResult r;
-  toro::FinishOptions o;
-  if (iterations > 0) o.max_iterations = iterations;
-  o.robust = optimizerOptions().robust;
-  if (!toro::cholmodAvailable()) o.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
-  toro::PoseGraph graph = optimizer_.graph();
-  try {
-    const toro::FinishReport report = toro::LevenbergMarquardt(o).optimize(graph);
-    r.chi2_before = report.initial_chi2;
-    r.chi2_after = report.final_chi2;
-    r.time_sec = report.seconds;
-    r.iterations = static_cast<int>(report.iterations);
-    r.message = std::to_string(report.iterations) +
-                " Levenberg-Marquardt iterations, stopped: " + toro::finishStopName(report.stop);
-  } catch (const std::exception& e) {
-    r.message = std::string("finish failed: ") + e.what();
-    return r;
-  }
-  replaceGraph(graph);
-  last_chi2_ = r.chi2_after;
-  last_optimization_sec_ = r.time_sec;
-  r.success = true;
-  return r;
+bool Pipeline::mergeFinish(const FinishOutcome& outcome) {
+  const bool merged = map_.mergeFinish(outcome);
+  // A finish dropped because the graph was reset meanwhile is routine; one that failed is not.
+  if (!outcome.success && outcome.error != "cancelled" && warn_) warn_("background finish: " + outcome.error);
+  return merged;
 }
 
 OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) {
@@ -451,38 +288,11 @@ OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) 
     r.message = "unknown mode '" + mode + "' (use \"full\" or \"finish\")";
     return r;
   }
-  if (optimizer_.graph().numConstraints() == 0) {
+  if (map_.graph().numConstraints() == 0) {
     r.message = "nothing to optimise: the graph has no constraints";
     return r;
   }
-  settleGate();  // the newest loop closure's pass and test come first, as on the schedule
-  affected_pending_ = false;
-  full_passes_left_ = 0;
-  loop_closures_since_full_ = 0;
-  if (mode == "finish") return finish(iterations);
-  r.iterations =
-      iterations > 0 ? static_cast<int>(iterations) : options_.optimization.service_default_iterations;
-  r.chi2_before = toro::g2oChi2(optimizer_.graph());
-  optimizer_.setIteration(0);
-  r.time_sec = timed([&] {
-    // A loop closure removed by the re-check leaves the others to settle: passes again (bounded).
-    for (int round = 0; round < kMaxRecheckRounds; ++round) {
-      for (int i = 0; i < r.iterations; ++i) optimizer_.iterate();
-      if (!recheckLoopClosures()) break;
-      optimizer_.setIteration(0);
-    }
-  });
-  optimizer_.clearAffected();
-  ++revision_;
-  counters_.optimization_passes += r.iterations;
-  affected_pending_ = false;
-  full_passes_left_ = 0;
-  loop_closures_since_full_ = 0;
-  r.chi2_after = last_chi2_ = toro::g2oChi2(optimizer_.graph());
-  last_optimization_sec_ = r.time_sec;
-  r.success = true;
-  r.message = std::to_string(r.iterations) + " full passes";
-  return r;
+  return map_.optimize(iterations, mode == "finish");
 }
 
 void Pipeline::clearGraph() {
@@ -492,23 +302,14 @@ void Pipeline::clearGraph() {
     r.detail = "the graph was reset while it waited";
     refuseLoopClosure(r, msg);
   }
-  robust_width_ = options_.robust.width;
-  optimizer_ = toro::TreeOptimizer(optimizerOptions());
+  map_.clear();
   keyframer_.reset();
   logged_odometry_rule_.clear();
   last_odometry_.reset();
   odometry_history_.clear();
   keyframes_.clear();
-  is_loop_closure_.clear();
-  before_gate_.reset();
-  rejected_.clear();
   newest_odometry_ = ros::Time();
   next_id_ = 0;
-  affected_pending_ = false;
-  loop_closures_since_full_ = keyframes_since_full_ = 0;
-  last_full_stamp_ = ros::Time();
-  full_passes_left_ = 0;
-  last_chi2_ = kNaN;
   applied_messages_.clear();
   resume_after_.reset();
   next_keyframe_after_gap_ = false;
@@ -527,7 +328,9 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
   auto s = std::make_shared<Snapshot>();
   s->generation = ++generation_;
   s->epoch = epoch_;
-  const toro::PoseGraph& g = optimizer_.graph();
+  const toro::PoseGraph& g = map_.graph();
+  const std::vector<bool>& is_loop_closure = map_.loopClosureFlags();
+  const std::vector<double>& weights = map_.weights();
   const auto& records = keyframes_.records();
   s->keyframes.reserve(records.size());
   for (std::size_t i = 0; i < records.size(); ++i)
@@ -535,14 +338,14 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
   s->edges.reserve(g.numConstraints());
   for (std::size_t c = 0; c < g.numConstraints(); ++c) {
     const toro::Constraint& k = g.constraints()[c];
-    const bool lc = is_loop_closure_[c];
-    const double weight = optimizer_.weights()[c];
+    const bool lc = is_loop_closure[c];
+    const double weight = weights[c];
     s->edges.push_back(
         SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0, weight});
     if (lc && weight < toro::kRejectedWeight) ++s->down_weighted_loop_closures;
   }
-  s->robust_width = options_.robust.enabled() ? robust_width_ : 0.0;
-  for (const RejectedLoopClosure& r : rejected_)
+  s->robust_width = map_.robustWidth();
+  for (const RejectedLoopClosure& r : map_.rejected())
     if (g.hasNode(r.constraint.from) && g.hasNode(r.constraint.to))
       s->rejected_edges.push_back(
           SnapshotEdge{g.indexOf(r.constraint.from), g.indexOf(r.constraint.to), true, r.chi2});
@@ -551,8 +354,8 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
     s->map_T_odom = g.node(records.size() - 1).pose * records.back().odom_T_base.inverse();
     s->newest_stamp = records.back().stamp;
   }
-  s->chi2 = last_chi2_;
-  s->last_optimization_sec = last_optimization_sec_;
+  s->chi2 = map_.lastChi2();
+  s->last_optimization_sec = map_.lastOptimizationSec();
   s->pending_loop_closures = matcher_.pending();
   s->counters = counters_;
   return s;
@@ -561,17 +364,19 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
 PipelineStatus Pipeline::status() const {
   PipelineStatus s;
   s.keyframes = keyframes_.size();
-  s.constraints = optimizer_.graph().numConstraints();
+  s.constraints = map_.graph().numConstraints();
   s.pending_loop_closures = matcher_.pending();
-  s.last_chi2 = last_chi2_;
-  s.last_optimization_sec = last_optimization_sec_;
+  s.last_chi2 = map_.lastChi2();
+  s.last_optimization_sec = map_.lastOptimizationSec();
   s.paused = paused_;
   s.counters = counters_;
-  s.rejected = rejected_;
+  s.rejected = map_.rejected();
   s.odometry_covariance_rule = keyframer_.ruleDescription();
   s.loop_closure_covariance_rule = loop_closure_rule_;
-  s.down_weighted = downWeighted();
-  s.robust_width = options_.robust.enabled() ? robust_width_ : 0.0;
+  s.down_weighted = map_.downWeighted();
+  s.robust_width = map_.robustWidth();
+  s.last_finish = map_.lastFinish();
+  s.finish_running = map_.finishOutstanding();
   return s;
 }
 

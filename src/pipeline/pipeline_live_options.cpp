@@ -20,6 +20,10 @@ std::string Pipeline::applyLiveOptions(const PipelineOptions& requested) {
   next.optimization.full_every_keyframes = requested.optimization.full_every_keyframes;
   next.optimization.full_every_sec = requested.optimization.full_every_sec;
   next.optimization.service_default_iterations = requested.optimization.service_default_iterations;
+  // The background finish: read when the next job is due.
+  next.optimization.background_finish = requested.optimization.background_finish;
+  next.optimization.finish_min_interval_sec = requested.optimization.finish_min_interval_sec;
+  next.optimization.finish_max_iterations = requested.optimization.finish_max_iterations;
   // The gate: the threshold applies to the next test (a loop closure on trial included).
   next.loop_closure_gate_confidence = requested.loop_closure_gate_confidence;
   next.loop_closure_gate_variance_factor = requested.loop_closure_gate_variance_factor;
@@ -34,18 +38,8 @@ std::string Pipeline::applyLiveOptions(const PipelineOptions& requested) {
   // The keyframer keeps its reference keyframe and what it learnt of the covariance convention;
   // only its thresholds change.
   keyframer_.setThresholds(next.keyframer.distance_m, next.keyframer.angle_rad, next.keyframer.interval_sec);
-  // A round in progress does not run more passes than a round now has.
-  full_passes_left_ = std::min(full_passes_left_, next.optimization.full_iterations);
-  gate_threshold_ = gateThresholdFor(next);
-  const bool width_changed = next.robust.width != options_.robust.width;
+  map_.applyLiveOptions(next.optimization, next.robust, gateThresholdFor(next));
   options_ = next;
-  if (width_changed && options_.robust.enabled()) {
-    // Every loop closure is weighed again with the new width, now.
-    robust_width_ = options_.robust.width;
-    optimizer_.setRobustWidth(robust_width_);
-    optimizer_.refreshWeights();
-    ++revision_;
-  }
   return "";
 }
 

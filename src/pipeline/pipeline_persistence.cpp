@@ -65,19 +65,20 @@ std::string PersistenceOptions::validate() const {
 std::string Pipeline::saveGraph(const std::string& path) const { return saveGraph(GraphFileRef(path)); }
 
 std::string Pipeline::saveGraph(const GraphFileRef& file) const {
-  if (optimizer_.graph().empty()) return "nothing to save: the graph is empty";
+  if (map_.graph().empty()) return "nothing to save: the graph is empty";
   Sidecar s;
   s.keyframes = keyframes_.records();
-  for (std::size_t c = 0; c < is_loop_closure_.size(); ++c)
-    if (is_loop_closure_[c]) s.loop_closures.push_back(c);
-  s.rejected = rejected_;
+  const std::vector<bool>& is_loop_closure = map_.loopClosureFlags();
+  for (std::size_t c = 0; c < is_loop_closure.size(); ++c)
+    if (is_loop_closure[c]) s.loop_closures.push_back(c);
+  s.rejected = map_.rejected();
   toro::WriteOptions format;
   format.format = toro::formatFromExtension(file.name());
   try {
     // Both written to temporary files first and renamed in place (sidecar first, graph last), so
     // a crash or kill while saving (autosave) leaves the previous pair intact.
     PendingFile sidecar(file.sidecar(), [&](std::ostream& out) { writeSidecar(out, s); });
-    PendingFile graph(file, [&](std::ostream& out) { toro::writeGraph(optimizer_.graph(), out, format); });
+    PendingFile graph(file, [&](std::ostream& out) { toro::writeGraph(map_.graph(), out, format); });
     sidecar.commit();
     graph.commit();
   } catch (const std::exception& e) {
@@ -109,22 +110,20 @@ std::string Pipeline::loadGraph(const GraphFileRef& file) {
   if (!mismatch.empty()) return sidecarPath(path) + ": " + mismatch;
 
   clearGraph();
-  is_loop_closure_.assign(graph.numConstraints(), false);
-  for (std::size_t c : sidecar.loop_closures) is_loop_closure_[c] = true;
-  replaceGraph(graph);
+  std::vector<bool> is_loop_closure(graph.numConstraints(), false);
+  for (std::size_t c : sidecar.loop_closures) is_loop_closure[c] = true;
   for (KeyframeRecord k : sidecar.keyframes) {
     if (options_.planar) k.odom_T_base = toro::projectToPlane(k.odom_T_base);  // as at input
     keyframes_.append(k);
   }
-  rejected_ = sidecar.rejected;
   const KeyframeRecord& newest = keyframes_.newest();
+  map_.load(graph, is_loop_closure, sidecar.rejected, newest.stamp);
   // The sidecar does not keep odometry covariances: NaN marks the reference's as unknown, so the
   // first step after the load takes the default information (kDifference would otherwise use the
   // whole covariance accumulated since the odometry started).
   keyframer_.setLast(OdometrySample{newest.stamp, newest.odom_T_base,
                                     toro::Matrix6::Constant(std::numeric_limits<double>::quiet_NaN())});
   newest_odometry_ = newest.stamp;
-  last_full_stamp_ = newest.stamp;
   next_id_ = newest.id + 1;
   resume_after_ = loaded_until_ = newest.stamp;
   // Whatever the resume link, the odometry between the saved newest keyframe and the first new one
@@ -195,7 +194,7 @@ std::string loadOnStart(Pipeline& pipeline, const std::string& path, bool quote_
 
 std::string Pipeline::autosave() {
   const std::string& path = options_.persistence.autosave_path;
-  if (path.empty() || revision_ == autosaved_revision_ || optimizer_.graph().empty()) return "";
+  if (path.empty() || revision_ == autosaved_revision_ || map_.graph().empty()) return "";
   const std::string error = saveGraph(path);
   if (!error.empty()) {
     ++counters_.autosave_failures;

@@ -116,6 +116,13 @@ class TreeOptimizer {
   void applyUpdate(std::size_t constraint_index, double learning_rate);
   // Forgets what counts as "new" for iterateAffected() without a full pass.
   void clearAffected();
+  // Makes constraint c count as new for the next iterateAffected(), as if it had just been added
+  // (its path and the constraints touching it are visited).
+  void markAffected(std::size_t c);
+  // Replaces every pose (by dense node index; projected onto the plane when planar()) and derives
+  // the parameters from them, keeping the tree, the weights, the preconditioner and the affected
+  // set: a solution found elsewhere (the sparse finish) taken over without a rebuild.
+  void setPoses(const std::vector<Pose3>& poses);
 
   // Constraint indices at a node, and a constraint's dense endpoints (for path computations).
   const std::vector<std::size_t>& incident(std::size_t node) const { return incident_[node]; }

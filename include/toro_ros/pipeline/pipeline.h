@@ -21,22 +21,11 @@
 #include "toro_ros/pipeline/graph_file.h"
 #include "toro_ros/pipeline/keyframer.h"
 #include "toro_ros/pipeline/loop_closure_matcher.h"
+#include "toro_ros/pipeline/map_optimizer.h"
 #include "toro_ros/pipeline/odometry_history.h"
 #include "toro_ros/pipeline/snapshot.h"
 
 namespace toro_ros {
-
-struct OptimizationOptions {
-  double gamma = 1.0;  // TORO learning rate 1/(gamma k)
-  // Full rounds: `full_iterations` passes over all constraints, due every `full_every_keyframes`
-  // new keyframes or `full_every_sec` of message time (0 disables either), and only when a loop
-  // closure arrived since the last round (a chain of odometry alone has nothing to correct).
-  int full_iterations = 5;
-  int full_every_keyframes = 50;
-  double full_every_sec = 10.0;
-  int service_default_iterations = 20;  // ~optimize with iterations = 0
-  std::string validate() const;
-};
 
 // How the odometry of a run that resumed a saved map (loadGraph) joins the saved keyframes.
 enum class ResumeLink {
@@ -105,15 +94,6 @@ struct PipelineOptions {
   std::string validate() const;
 };
 
-struct OptimizeResult {
-  bool success = false;
-  std::string message;
-  double chi2_before = 0.0;
-  double chi2_after = 0.0;
-  double time_sec = 0.0;
-  int iterations = 0;
-};
-
 // "dcs" | "cauchy" | "huber" (| "none").
 std::string toString(toro::RobustKernel kernel);
 
@@ -135,6 +115,9 @@ struct PipelineStatus {
   // and regain weight when the map comes to agree with them), and the kernel width in use.
   std::vector<DownWeightedLoopClosure> down_weighted;
   double robust_width = 0.0;
+  // The newest background finish (nullopt before the first) and whether one is running now.
+  std::optional<FinishRecord> last_finish;
+  bool finish_running = false;
 };
 
 class Pipeline {
@@ -158,9 +141,15 @@ class Pipeline {
   bool hasScheduledWork() const;
 
   // ~optimize: mode "full" (or empty): `iterations` TORO passes over all constraints (0: the
-  // configured default); "finish": the core's sparse Levenberg-Marquardt on the g2o chi2 with at
-  // most `iterations` iterations (0: its default).
+  // configured default), then the finish when optimization.background_finish is on; "finish":
+  // the core's sparse Levenberg-Marquardt on the g2o chi2 with at most `iterations` iterations
+  // (0: its default).
   OptimizeResult optimize(unsigned iterations, const std::string& mode);
+  // The background finish (MapOptimizer): a job when one is due (run it anywhere with
+  // runFinishJob, then give the outcome to mergeFinish, on the pipeline's thread).  Nothing while
+  // paused.  mergeFinish returns true if the outcome was taken into the map.
+  std::optional<FinishJob> takeFinishJob();
+  bool mergeFinish(const FinishOutcome& outcome);
   void setPaused(bool paused) { paused_ = paused; }
   bool paused() const { return paused_; }
   // Forgets the graph, keyframes and pending loop closures (counters survive; resets counted).
@@ -185,15 +174,15 @@ class Pipeline {
   // A new immutable snapshot of the current state (O(keyframes + constraints)).
   std::shared_ptr<const Snapshot> makeSnapshot();
   PipelineStatus status() const;
-  const toro::PoseGraph& graph() const { return optimizer_.graph(); }
+  const toro::PoseGraph& graph() const { return map_.graph(); }
   const KeyframeIndex& keyframes() const { return keyframes_; }
   // Loop closures the gate refused, in the order they were refused.
-  const std::vector<RejectedLoopClosure>& rejectedLoopClosures() const { return rejected_; }
+  const std::vector<RejectedLoopClosure>& rejectedLoopClosures() const { return map_.rejected(); }
   // The gate's chi2 threshold (infinity when the gate is off).
-  double gateThreshold() const { return gate_threshold_; }
+  double gateThreshold() const { return map_.gateThreshold(); }
   const PipelineOptions& options() const { return options_; }
   // The options of the pipeline's TORO optimiser now (gamma, robust kernel with the adapted width).
-  toro::TreeOptimizerOptions optimizerOptions() const;
+  toro::TreeOptimizerOptions optimizerOptions() const { return map_.optimizerOptions(); }
   // Run-time tuning (pipeline_live_options.cpp): takes from `options` the values that are safe
   // to change while running (keyframe thresholds, the optimisation schedule, the gate, the robust
   // kernel's width and its adaptation) and keeps the others.  Empty string on success; else why
@@ -201,7 +190,7 @@ class Pipeline {
   std::string applyLiveOptions(const PipelineOptions& options);
   // Changes whenever what a snapshot shows changes (keyframes, constraints, poses, counters of
   // refusals, resets); not for odometry that makes no keyframe.  Publishers compare it.
-  std::uint64_t revision() const { return revision_; }
+  std::uint64_t revision() const { return revision_ + map_.revision(); }
 
  private:
   void addKeyframe(const OdometrySample& sample);
@@ -224,63 +213,28 @@ class Pipeline {
   void refuse(const std::string& category, const std::string& detail);
   void refuseLoopClosure(const MatchResult& match, const LoopClosure& msg);
   void clearGraph();
-  void runFullPass();
-  void runAffectedPass();
-  OptimizeResult finish(unsigned iterations);
-  // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints
-  // (it sets their kinds, so the robust weights apply to the loop closures only).
-  void replaceGraph(const toro::PoseGraph& graph);
-  // After a full round: the robust kernel's width follows the accepted loop closures' residuals.
-  void adaptRobustWidth();
-  std::vector<DownWeightedLoopClosure> downWeighted() const;
-  // Gate (pipeline_gate.cpp): remember the state before a loop closure, test it after its pass.
-  bool gateEnabled() const { return gate_threshold_ < std::numeric_limits<double>::infinity(); }
-  void beginGate(const LoopClosure& msg);
-  void settleGate();
-  void rejectCandidate(double chi2);
-  // After a full round: the accepted loop closure with the largest chi2 is removed if it fails the
-  // gate.  Returns true if one was removed or (when none was) rejected ones were re-admitted.
-  bool recheckLoopClosures();
-  // Then: rejected loop closures the map now agrees with are applied again.  True if any were.
-  bool readmitRejected();
 
   PipelineOptions options_;
   WarningSink warn_;
   InfoSink info_;
-  toro::TreeOptimizer optimizer_;
+  PipelineCounters counters_;  // before map_, which keeps a pointer to it
+  MapOptimizer map_;
   Keyframer keyframer_;
   LoopClosureMatcher matcher_;
   KeyframeIndex keyframes_;
-  std::vector<bool> is_loop_closure_;  // per constraint index
   ros::Time newest_odometry_;
   std::optional<OdometrySample> last_odometry_;  // the newest odometry message, keyframe or not
   OdometryHistory odometry_history_;
   toro::NodeId next_id_ = 0;
   bool paused_ = false;
-  // Schedule state (message time, never wall time).
-  bool affected_pending_ = false;
-  std::size_t loop_closures_since_full_ = 0;
-  std::size_t keyframes_since_full_ = 0;
-  ros::Time last_full_stamp_;
-  int full_passes_left_ = 0;
-  double last_chi2_;
-  double last_optimization_sec_ = 0.0;
   std::uint64_t generation_ = 0;
   std::uint64_t revision_ = 0;
   std::uint64_t epoch_ = 0;
-  PipelineCounters counters_;
   std::string logged_odometry_rule_;          // the convention last logged ("" none yet)
   std::vector<AxisReadings> logged_loop_closure_axes_;  // loop-closure readings logged so far
   std::string loop_closure_rule_;
   // The chi2 above which the gate refuses a loop closure (infinity when the gate is off).
   static double gateThresholdFor(const PipelineOptions& options);
-  double gate_threshold_;
-  double robust_width_;  // the robust kernel's width now (adapted after full rounds)
-  // The optimiser as it was before the newest loop closure, until that one passed the gate.
-  std::optional<toro::TreeOptimizer> before_gate_;
-  std::size_t gate_constraint_ = 0;  // the candidate's constraint index
-  ros::Time gate_stamp_;              // its message's header stamp
-  std::vector<RejectedLoopClosure> rejected_;
   std::unordered_set<std::uint64_t> applied_messages_;  // hashes of applied loop-closure messages
   // Persistence: set by loadGraph until newer odometry arrives; the last autosave.
   std::optional<ros::Time> resume_after_;

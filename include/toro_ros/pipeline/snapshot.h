@@ -25,6 +25,11 @@ struct PipelineCounters {
   std::uint64_t time_jump_resets = 0;
   std::uint64_t resets = 0;               // all resets (time jumps, service, load)
   std::uint64_t optimization_passes = 0;  // full and affected passes run
+  // Background finishes (MapOptimizer): taken, merged into the map, dropped (the graph was reset,
+  // loaded or lost a constraint while one ran, or it failed: the log says why).
+  std::uint64_t finishes_started = 0;
+  std::uint64_t finishes_merged = 0;
+  std::uint64_t finishes_dropped = 0;
   std::uint64_t autosaves = 0;            // successful autosaves
   std::uint64_t autosave_failures = 0;    // failed ones (each also logged with the reason)
   // Covariances read axis by axis (covariance_rules.h); none of these is a refusal.  Odometry steps

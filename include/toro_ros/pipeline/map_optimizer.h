@@ -1,0 +1,214 @@
+// The corrected map and its optimisation schedule, apart from the message handling (Pipeline keeps
+// keyframes, stamp matching and persistence and hands this class nodes and constraints).  What it
+// decides and runs:
+// - an affected TORO pass after each applied loop closure (the instant correction);
+// - full rounds of TORO passes every so many keyframes or seconds of message time;
+// - the chi-square gate (optional) and the robust kernel's width, which follows the accepted loop
+//   closures' residuals;
+// - the background finish: the sparse Levenberg-Marquardt on a copy of the graph (a FinishJob),
+//   run by the owner where it likes (the node: a thread of its own; the offline runner: inline, at
+//   the same points) and merged back through the tree (mergeFinish).
+// Like Pipeline it starts no threads and reads no clock to decide anything, so a given call
+// sequence gives the same map.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <ros/time.h>
+
+#include "toro_ros/core/pose_graph.h"
+#include "toro_ros/core/robust_kernel.h"
+#include "toro_ros/core/sparse_finisher.h"
+#include "toro_ros/core/tree_optimizer.h"
+#include "toro_ros/pipeline/snapshot.h"
+
+namespace toro_ros {
+
+struct OptimizationOptions {
+  double gamma = 1.0;  // TORO learning rate 1/(gamma k)
+  // Full rounds: `full_iterations` passes over all constraints, due every `full_every_keyframes`
+  // new keyframes or `full_every_sec` of message time (0 disables either), and only when a loop
+  // closure arrived since the last round or finish (a chain of odometry alone has nothing to
+  // correct, and a finish leaves nothing for a round).
+  int full_iterations = 5;
+  int full_every_keyframes = 50;
+  double full_every_sec = 10.0;
+  int service_default_iterations = 20;  // ~optimize with iterations = 0
+  // Background finish: after a loop closure was applied (or the graph was loaded, or a loop
+  // closure was re-admitted or removed), the sparse finish runs on a copy of the graph, at most
+  // once per `finish_min_interval_sec` of message time and with at most `finish_max_iterations`
+  // Levenberg-Marquardt iterations; its result is merged back (MapOptimizer::mergeFinish).  With it
+  // on, a full ~optimize ends with the finish too, so the map it leaves is the optimum.
+  bool background_finish = true;
+  double finish_min_interval_sec = 1.0;
+  int finish_max_iterations = 20;
+  std::string validate() const;
+};
+
+struct OptimizeResult {
+  bool success = false;
+  std::string message;
+  double chi2_before = 0.0;
+  double chi2_after = 0.0;
+  double time_sec = 0.0;
+  int iterations = 0;
+};
+
+// A finish to run on a copy of the graph, away from the pipeline (any thread): runFinishJob.
+struct FinishJob {
+  std::uint64_t sequence = 0;   // 1, 2, ... per MapOptimizer
+  std::uint64_t structure = 0;  // MapOptimizer's structure version when it was taken
+  ros::Time stamp;              // newest message time then
+  toro::PoseGraph graph;        // the graph then; its poses (the current estimate) are the warm start
+  toro::FinishOptions options;  // the robust weights as the TORO passes use them
+};
+
+struct FinishOutcome {
+  std::uint64_t sequence = 0;
+  std::uint64_t structure = 0;
+  ros::Time stamp;
+  bool success = false;
+  std::string error;      // when not success
+  toro::PoseGraph graph;  // the job's graph with the finished poses
+  double chi2_before = 0.0;
+  double chi2_after = 0.0;
+  std::size_t iterations = 0;
+  double seconds = 0.0;  // wall time of the finish (reported only)
+};
+
+// Runs the job's finish.  Thread-safe (touches nothing but the job); never throws: a failure is
+// reported in the outcome.  `cancelled` (optional) is polled after every iteration: when it
+// returns true the finish stops and the outcome says so (not success).
+FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled = {});
+
+// What the last finish did, for ~get_status and diagnostics.
+struct FinishRecord {
+  bool merged = false;      // its result was taken into the map (else dropped, or failed: error)
+  std::string error;        // why it was dropped or failed ("" when merged)
+  ros::Time stamp;          // message time when it was taken
+  double seconds = 0.0;     // its wall time
+  double chi2_before = 0.0;  // g2o chi2 of its graph before and after
+  double chi2_after = 0.0;
+  std::size_t iterations = 0;
+  std::size_t nodes_added_since = 0;  // keyframes that arrived while it ran (moved with their parents)
+};
+
+class MapOptimizer {
+ public:
+  // Hear the gate's refusals (category, detail) and one-line notes (re-admissions); both optional.
+  using RefusalSink = std::function<void(const std::string& category, const std::string& detail)>;
+  using WarningSink = std::function<void(const std::string&)>;
+
+  // The options are validated by the caller (PipelineOptions::validate).  `counters` (kept, must
+  // outlive this) receives the counts of passes, applied, rejected and re-admitted loop closures
+  // and finishes.
+  MapOptimizer(const OptimizationOptions& optimization, const toro::RobustOptions& robust, bool planar,
+               double gate_threshold, PipelineCounters* counters, RefusalSink refuse = nullptr,
+               WarningSink warn = nullptr);
+
+  // Graph growth.  A keyframe with an odometry constraint (from the previous keyframe, whose
+  // corrected pose `pose` continues).  addLoopClosure: empty string when applied, else the graph's
+  // objection (the constraint is not added).
+  void addKeyframe(toro::NodeId id, const toro::Pose3& pose, const ros::Time& stamp,
+                   const std::optional<toro::Constraint>& odometry);
+  std::string addLoopClosure(const toro::Constraint& loop_closure, const ros::Time& message_stamp);
+
+  // One step of what is due at message time `now`: the affected pass after new loop closures,
+  // else one pass of a due full round.  Returns true if poses changed.
+  bool runScheduledStep(const ros::Time& now);
+  bool hasScheduledWork() const { return affected_pending_ || full_passes_left_ > 0; }
+  // ~optimize ("full" or "finish"; the caller checked the mode and that there are constraints).
+  OptimizeResult optimize(unsigned iterations, bool finish);
+
+  // The background finish.  takeFinishJob: a job when one is due at message time `now` and none is
+  // out (at most one at a time), else nullopt.  mergeFinish: the snapshot's nodes take the
+  // finish's poses, nodes added since keep their pose relative to their tree parent (so they move
+  // with it and nothing jumps), and loop closures added since get an affected pass at once.  An
+  // outcome of another structure (the graph was reset, loaded or lost a constraint meanwhile) or a
+  // failed one is dropped.  Returns true if merged.
+  std::optional<FinishJob> takeFinishJob(const ros::Time& now);
+  bool mergeFinish(const FinishOutcome& outcome);
+  bool finishOutstanding() const { return finish_outstanding_; }
+  const std::optional<FinishRecord>& lastFinish() const { return last_finish_; }
+
+  // Forgets everything (reset).  load: a saved graph, its loop-closure flags and rejected ones.
+  void clear();
+  void load(const toro::PoseGraph& graph, const std::vector<bool>& is_loop_closure,
+            const std::vector<RejectedLoopClosure>& rejected, const ros::Time& newest);
+  // Run-time tuning: the schedule's numbers, the gate threshold and the robust width (the
+  // adaptation starts again from it); the caller validated them.
+  void applyLiveOptions(const OptimizationOptions& optimization, const toro::RobustOptions& robust,
+                        double gate_threshold);
+
+  const toro::PoseGraph& graph() const { return optimizer_.graph(); }
+  const std::vector<bool>& loopClosureFlags() const { return is_loop_closure_; }
+  const std::vector<double>& weights() const { return optimizer_.weights(); }
+  const std::vector<RejectedLoopClosure>& rejected() const { return rejected_; }
+  std::vector<DownWeightedLoopClosure> downWeighted() const;
+  double gateThreshold() const { return gate_threshold_; }
+  double robustWidth() const { return robust_.enabled() ? robust_width_ : 0.0; }
+  double lastChi2() const { return last_chi2_; }
+  double lastOptimizationSec() const { return last_optimization_sec_; }
+  // The TORO optimiser's options now (gamma, robust kernel with the adapted width, group).
+  toro::TreeOptimizerOptions optimizerOptions() const;
+  // Changes whenever the map (poses, constraints, weights, rejected ones) changes.
+  std::uint64_t revision() const { return revision_; }
+
+ private:
+  void runAffectedPass();
+  void runFullPass();
+  OptimizeResult finishNow(unsigned iterations);
+  toro::FinishOptions finishOptions(unsigned iterations) const;
+  // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints.
+  void replaceGraph(const toro::PoseGraph& graph);
+  void adaptRobustWidth();
+  // The gate: remember the state before a loop closure, test it after its pass.
+  bool gateEnabled() const { return gate_threshold_ < std::numeric_limits<double>::infinity(); }
+  void beginGate(const ros::Time& message_stamp);
+  void settleGate();
+  void rejectCandidate(double chi2);
+  bool recheckLoopClosures();
+  bool readmitRejected();
+  void refuse(const std::string& category, const std::string& detail);
+
+  OptimizationOptions options_;
+  toro::RobustOptions robust_;
+  bool planar_;
+  double gate_threshold_;
+  PipelineCounters* counters_;
+  RefusalSink refuse_;
+  WarningSink warn_;
+  toro::TreeOptimizer optimizer_;
+  std::vector<bool> is_loop_closure_;  // per constraint index
+  double robust_width_;                // the robust kernel's width now (adapted)
+  double last_chi2_;
+  double last_optimization_sec_ = 0.0;
+  std::uint64_t revision_ = 0;
+  // Schedule state (message time, never wall time).
+  bool affected_pending_ = false;
+  std::size_t loop_closures_since_full_ = 0;  // since the last full round or finish job
+  std::size_t keyframes_since_full_ = 0;
+  ros::Time last_full_stamp_;
+  int full_passes_left_ = 0;
+  // Background finish: due when the map has something the last finish did not see.
+  bool finish_due_ = false;
+  bool finish_outstanding_ = false;
+  std::uint64_t finish_sequence_ = 0;
+  ros::Time last_finish_stamp_;
+  // Changes when constraints are removed or the graph is replaced: a finish of another structure
+  // cannot be merged.
+  std::uint64_t structure_ = 0;
+  std::optional<FinishRecord> last_finish_;
+  // The gate's candidate: the optimiser as it was before it, its constraint index and stamp.
+  std::optional<toro::TreeOptimizer> before_gate_;
+  std::size_t gate_constraint_ = 0;
+  ros::Time gate_stamp_;
+  std::vector<RejectedLoopClosure> rejected_;
+};
+
+}  // namespace toro_ros

@@ -1,0 +1,610 @@
+// The chi-square gate (optional).  A place recogniser is sometimes wrong, and one wrong loop
+// closure pulls the whole map out of shape.  With the gate on, each new loop closure is applied
+// tentatively: the optimiser is copied first (O(graph), measured in test_loop_closure_gate), the
+// loop closure's affected pass runs as scheduled, and then its own g2o chi2 is compared with the
+// chi-square quantile at the configured confidence.  Above it, the copy is restored (plus the
+// keyframes that arrived in between) and the loop closure kept as rejected.
+//
+// Order of events: only one loop closure is on trial at a time.  When another one is applied
+// before the trial ended (several arriving together, or while paused), the pending one's pass and
+// test run first, so each is judged against a graph that holds only loop closures that passed.
+//
+// The background finish: a job copies the graph (the current estimate is its warm start); its
+// outcome comes back through mergeFinish, possibly after more keyframes and loop closures arrived.
+// The merge goes through the tree, so what arrived meanwhile follows the finished poses.
+#include "toro_ros/pipeline/map_optimizer.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "toro_ros/core/finish_residuals.h"
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/pipeline/msg_conversion.h"
+
+namespace toro_ros {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr int kMaxRecheckRounds = 10;
+// The robust width adapts once this many accepted loop closures give it a median, after every loop
+// closure while fewer than kEarlyLoopClosures were applied (senders whose covariances are far too
+// large must be caught before wrong loop closures bend the map), then after full rounds and merges.
+constexpr std::size_t kMinLoopClosuresToAdaptWidth = 5;
+constexpr std::size_t kEarlyLoopClosures = 200;
+// The width narrows to this many times the median arrival innovation of the accepted loop closures:
+// right ones' residuals are heavy-tailed (largest / median up to ~200 on real data), wrong ones lie
+// 100 to 1e5 times above the median.
+constexpr double kMedianWidthFactor = 250.0;
+
+constexpr const char* kArrivalReason = "loop closure: failed the chi-square gate";
+constexpr const char* kRecheckReason = "loop closure: failed the chi-square gate on re-check";
+
+// Seconds of wall time spent in `f`; reported only, never used to decide anything.
+template <class F>
+double timed(F&& f) {
+  const auto t0 = std::chrono::steady_clock::now();
+  f();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// The innovation chi2 of a new constraint, e_before^T Omega e_after, from its g2o error before
+// and after its pass.  Why: in a linear-Gaussian update with S = Sigma_z + Sigma_path (the
+// uncertainty of the measurement plus that of the path between its poses),
+// e_after = Sigma_z S^-1 e_before, so e_before^T Omega e_after = e_before^T S^-1 e_before, the
+// textbook innovation test, without computing any covariance.  Its own chi2 after the pass,
+// e_after^T Omega e_after, is smaller by the factor Sigma_z / S and cannot tell a wrong loop
+// closure that the pass absorbed into a long uncertain path from a right one.
+double innovationChi2(const toro::PoseGraph& before, const toro::PoseGraph& after, std::size_t c) {
+  const toro::Constraint& k = after.constraints()[c];
+  const toro::Vector6 e0 = toro::errorSE3(before.pose(k.from), before.pose(k.to), k.measurement);
+  const toro::Vector6 e1 = toro::errorSE3(after.pose(k.from), after.pose(k.to), k.measurement);
+  return e0.dot(k.information * e1);
+}
+
+// Thrown from the finish's iteration callback to stop it (runFinishJob's `cancelled`).
+struct FinishCancelled {};
+
+}  // namespace
+
+std::string OptimizationOptions::validate() const {
+  if (!(std::isfinite(gamma) && gamma > 0)) return "optimization gamma must be > 0";
+  if (full_iterations < 0) return "optimization full_iterations must be >= 0";
+  if (full_every_keyframes < 0) return "optimization full_every_keyframes must be >= 0";
+  if (!(std::isfinite(full_every_sec) && full_every_sec >= 0))
+    return "optimization full_every_sec must be >= 0";
+  if (service_default_iterations <= 0) return "optimization service_default_iterations must be > 0";
+  if (!(std::isfinite(finish_min_interval_sec) && finish_min_interval_sec >= 0))
+    return "optimization finish_min_interval_sec must be >= 0";
+  if (finish_max_iterations <= 0) return "optimization finish_max_iterations must be > 0";
+  return "";
+}
+
+FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled) {
+  FinishOutcome out;
+  out.sequence = job.sequence;
+  out.structure = job.structure;
+  out.stamp = job.stamp;
+  try {
+    toro::FinishCallback callback;
+    if (cancelled)
+      callback = [&cancelled](const toro::FinishIteration&) {
+        if (cancelled()) throw FinishCancelled{};
+      };
+    const toro::FinishReport report = toro::LevenbergMarquardt(job.options).optimize(job.graph, callback);
+    out.chi2_before = report.initial_chi2;
+    out.chi2_after = report.final_chi2;
+    out.iterations = report.iterations;
+    out.seconds = report.seconds;
+    out.success = true;
+  } catch (const FinishCancelled&) {
+    out.error = "cancelled";
+  } catch (const std::exception& e) {
+    out.error = std::string("finish failed: ") + e.what();
+  }
+  out.graph = std::move(job.graph);
+  return out;
+}
+
+MapOptimizer::MapOptimizer(const OptimizationOptions& optimization, const toro::RobustOptions& robust,
+                           bool planar, double gate_threshold, PipelineCounters* counters, RefusalSink refuse,
+                           WarningSink warn)
+    : options_(optimization),
+      robust_(robust),
+      planar_(planar),
+      gate_threshold_(gate_threshold),
+      counters_(counters),
+      refuse_(std::move(refuse)),
+      warn_(std::move(warn)),
+      robust_width_(robust.width),
+      last_chi2_(kNaN) {
+  optimizer_ = toro::TreeOptimizer(optimizerOptions());
+}
+
+toro::TreeOptimizerOptions MapOptimizer::optimizerOptions() const {
+  toro::TreeOptimizerOptions out;
+  out.gamma = options_.gamma;
+  out.robust = robust_;
+  out.robust.width = robust_width_;
+  out.parameterization = planar_ ? toro::Parameterization::kPlanar : toro::Parameterization::kSpatial;
+  return out;
+}
+
+void MapOptimizer::refuse(const std::string& category, const std::string& detail) {
+  ++revision_;
+  if (refuse_) refuse_(category, detail);
+}
+
+// ---- growth -----------------------------------------------------------------------------------
+
+void MapOptimizer::addKeyframe(toro::NodeId id, const toro::Pose3& pose, const ros::Time& stamp,
+                               const std::optional<toro::Constraint>& odometry) {
+  optimizer_.addNode(id, pose);
+  ++revision_;
+  if (last_full_stamp_.isZero()) last_full_stamp_ = stamp;
+  ++keyframes_since_full_;
+  if (!odometry) return;
+  optimizer_.addConstraint(*odometry);  // endpoints exist and the information is SPD by construction
+  is_loop_closure_.push_back(false);
+}
+
+std::string MapOptimizer::addLoopClosure(const toro::Constraint& loop_closure, const ros::Time& message_stamp) {
+  if (gateEnabled()) beginGate(message_stamp);
+  try {
+    optimizer_.addConstraint(loop_closure);
+  } catch (const toro::GraphError& e) {
+    before_gate_.reset();
+    return e.what();
+  }
+  is_loop_closure_.push_back(true);
+  ++revision_;
+  ++counters_->loop_closures_applied;
+  affected_pending_ = true;
+  finish_due_ = true;
+  if (counters_->loop_closures_applied <= kEarlyLoopClosures) adaptRobustWidth();
+  ++loop_closures_since_full_;
+  return "";
+}
+
+// ---- the schedule -----------------------------------------------------------------------------
+
+void MapOptimizer::runAffectedPass() {
+  last_optimization_sec_ = timed([&] { optimizer_.iterateAffected(1); });
+  ++revision_;
+  ++counters_->optimization_passes;
+  affected_pending_ = false;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+}
+
+void MapOptimizer::runFullPass() {
+  last_optimization_sec_ = timed([&] { optimizer_.iterate(); });
+  ++revision_;
+  ++counters_->optimization_passes;
+  // A full pass covers everything added so far.
+  optimizer_.clearAffected();
+  affected_pending_ = false;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+}
+
+bool MapOptimizer::runScheduledStep(const ros::Time& now) {
+  if (optimizer_.graph().empty()) return false;
+  if (affected_pending_) {
+    runAffectedPass();
+    settleGate();
+    return true;
+  }
+  if (full_passes_left_ == 0 && loop_closures_since_full_ > 0 && options_.full_iterations > 0) {
+    const bool by_count = options_.full_every_keyframes > 0 &&
+                          keyframes_since_full_ >= static_cast<std::size_t>(options_.full_every_keyframes);
+    const bool by_time = options_.full_every_sec > 0 && (now - last_full_stamp_).toSec() >= options_.full_every_sec;
+    if (by_count || by_time) {
+      // Restart the learning-rate schedule: the graph changed since the last round, and a rate
+      // decayed over the whole run would leave new loop closures uncorrected.
+      optimizer_.setIteration(0);
+      full_passes_left_ = options_.full_iterations;
+      loop_closures_since_full_ = 0;
+      keyframes_since_full_ = 0;
+      last_full_stamp_ = now;
+    }
+  }
+  if (full_passes_left_ == 0) return false;
+  --full_passes_left_;
+  runFullPass();
+  if (full_passes_left_ == 0) {
+    recheckLoopClosures();
+    adaptRobustWidth();
+  }
+  return true;
+}
+
+toro::FinishOptions MapOptimizer::finishOptions(unsigned iterations) const {
+  toro::FinishOptions o;
+  if (iterations > 0) o.max_iterations = iterations;
+  o.robust = optimizerOptions().robust;
+  if (!toro::cholmodAvailable()) o.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
+  return o;
+}
+
+OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
+  FinishJob job;
+  job.structure = structure_;
+  job.graph = optimizer_.graph();
+  job.options = finishOptions(iterations);
+  const FinishOutcome outcome = runFinishJob(std::move(job));
+  OptimizeResult r;
+  if (!outcome.success) {
+    r.message = outcome.error;
+    return r;
+  }
+  std::vector<toro::Pose3> poses;
+  poses.reserve(outcome.graph.numNodes());
+  for (const toro::Node& n : outcome.graph.nodes()) poses.push_back(n.pose);
+  optimizer_.setPoses(poses);
+  optimizer_.refreshWeights();
+  ++revision_;
+  r.chi2_before = outcome.chi2_before;
+  r.chi2_after = last_chi2_ = outcome.chi2_after;
+  r.time_sec = last_optimization_sec_ = outcome.seconds;
+  r.iterations = static_cast<int>(outcome.iterations);
+  r.message = std::to_string(outcome.iterations) + " Levenberg-Marquardt iterations";
+  r.success = true;
+  // The map is at the optimum of everything it holds: nothing is due.
+  finish_due_ = false;
+  return r;
+}
+
+OptimizeResult MapOptimizer::optimize(unsigned iterations, bool finish) {
+  settleGate();  // the newest loop closure's pass and test come first, as on the schedule
+  affected_pending_ = false;
+  full_passes_left_ = 0;
+  loop_closures_since_full_ = 0;
+  if (finish) return finishNow(iterations);
+  OptimizeResult r;
+  r.iterations = iterations > 0 ? static_cast<int>(iterations) : options_.service_default_iterations;
+  r.chi2_before = toro::g2oChi2(optimizer_.graph());
+  optimizer_.setIteration(0);
+  r.time_sec = timed([&] {
+    // A loop closure removed by the re-check leaves the others to settle: passes again (bounded).
+    for (int round = 0; round < kMaxRecheckRounds; ++round) {
+      for (int i = 0; i < r.iterations; ++i) optimizer_.iterate();
+      if (!recheckLoopClosures()) break;
+      optimizer_.setIteration(0);
+    }
+  });
+  optimizer_.clearAffected();
+  ++revision_;
+  counters_->optimization_passes += r.iterations;
+  r.chi2_after = last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  last_optimization_sec_ = r.time_sec;
+  r.success = true;
+  r.message = std::to_string(r.iterations) + " full passes";
+  if (options_.background_finish) {
+    // TORO's passes end near the optimum, not at it; with the finish on, the map a full ~optimize
+    // leaves is the optimum (what the background finish would reach a moment later).
+    const OptimizeResult f = finishNow(0);
+    if (!f.success) {
+      r.message += "; then " + f.message;
+      return r;
+    }
+    r.chi2_after = f.chi2_after;
+    r.time_sec += f.time_sec;
+    r.message += ", then the finish: " + f.message;
+  }
+  return r;
+}
+
+// ---- the background finish ------------------------------------------------------------------
+
+std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
+  if (!options_.background_finish || !finish_due_ || finish_outstanding_ || before_gate_ ||
+      optimizer_.graph().numConstraints() == 0)
+    return std::nullopt;
+  if (!last_finish_stamp_.isZero() && (now - last_finish_stamp_).toSec() < options_.finish_min_interval_sec)
+    return std::nullopt;
+  FinishJob job;
+  job.sequence = ++finish_sequence_;
+  job.structure = structure_;
+  job.stamp = now;
+  job.graph = optimizer_.graph();
+  job.options = finishOptions(static_cast<unsigned>(options_.finish_max_iterations));
+  finish_due_ = false;
+  finish_outstanding_ = true;
+  last_finish_stamp_ = now;
+  // The finish covers the loop closures so far: a full round is due again only for newer ones.
+  loop_closures_since_full_ = 0;
+  ++counters_->finishes_started;
+  return job;
+}
+
+bool MapOptimizer::mergeFinish(const FinishOutcome& outcome) {
+  if (!finish_outstanding_ || outcome.sequence != finish_sequence_) return false;  // not the job that is out
+  finish_outstanding_ = false;
+  FinishRecord record;
+  record.stamp = outcome.stamp;
+  record.seconds = outcome.seconds;
+  record.chi2_before = outcome.chi2_before;
+  record.chi2_after = outcome.chi2_after;
+  record.iterations = outcome.iterations;
+  const toro::PoseGraph& g = optimizer_.graph();
+  const std::size_t nodes = outcome.graph.numNodes();
+  const std::size_t constraints = outcome.graph.numConstraints();
+  if (!outcome.success || outcome.structure != structure_ || nodes > g.numNodes() ||
+      constraints > g.numConstraints()) {
+    record.error = !outcome.success ? outcome.error : "the graph was reset, loaded or lost a constraint meanwhile";
+    // What it would have corrected is still to be done.
+    finish_due_ = true;
+    ++counters_->finishes_dropped;
+    last_finish_ = record;
+    ++revision_;
+    return false;
+  }
+  settleGate();  // a loop closure on trial is judged first: its restore copy predates the merge
+  record.nodes_added_since = g.numNodes() - nodes;
+  std::vector<toro::Pose3> poses(g.numNodes());
+  for (std::size_t v = 0; v < nodes; ++v) poses[v] = outcome.graph.node(v).pose;
+  // Newer nodes keep their parameter (pose relative to the tree parent), in tree order so each
+  // parent is placed first.  Their parents may be newer too, or (through a loop closure) older.
+  const toro::ParameterTree& tree = optimizer_.tree();
+  for (std::size_t v : tree.topologicalOrder()) {
+    if (v < nodes) continue;
+    const std::size_t p = tree.parent(v);
+    poses[v] = p == toro::ParameterTree::kNone ? g.node(v).pose
+                                               : poses[p] * toro::relativePose(g.node(p).pose, g.node(v).pose);
+  }
+  optimizer_.setPoses(poses);
+  optimizer_.refreshWeights();
+  // Loop closures that arrived meanwhile were corrected on the old poses: their correction is
+  // redone on the finished ones now, so the map published after the merge holds them.
+  bool newer_loop_closures = false;
+  for (std::size_t c = constraints; c < g.numConstraints(); ++c) {
+    if (!is_loop_closure_[c]) continue;
+    optimizer_.markAffected(c);
+    newer_loop_closures = true;
+  }
+  if (newer_loop_closures) {
+    optimizer_.iterateAffected(1);
+    ++counters_->optimization_passes;
+    finish_due_ = true;
+  }
+  affected_pending_ = false;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  record.merged = true;
+  last_finish_ = record;
+  ++counters_->finishes_merged;
+  ++revision_;
+  adaptRobustWidth();
+  recheckLoopClosures();
+  return true;
+}
+
+// ---- graph replacement, reset, load, tuning ---------------------------------------------------
+
+void MapOptimizer::replaceGraph(const toro::PoseGraph& graph) {
+  // Replayed through the online path (addNode/addConstraint keep the given poses, as kFromGraph
+  // would) rather than setGraph: that is the path every live keyframe takes.
+  optimizer_ = toro::TreeOptimizer(optimizerOptions());
+  for (const toro::Node& n : graph.nodes()) optimizer_.addNode(n.id, n.pose);
+  for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
+    toro::Constraint k = graph.constraints()[c];
+    k.kind = c < is_loop_closure_.size() && is_loop_closure_[c] ? toro::ConstraintKind::kLoopClosure
+                                                                : toro::ConstraintKind::kOdometry;
+    optimizer_.addConstraint(k);
+  }
+  optimizer_.clearAffected();
+  ++structure_;
+  ++revision_;
+}
+
+void MapOptimizer::clear() {
+  robust_width_ = robust_.width;
+  optimizer_ = toro::TreeOptimizer(optimizerOptions());
+  is_loop_closure_.clear();
+  before_gate_.reset();
+  rejected_.clear();
+  affected_pending_ = false;
+  loop_closures_since_full_ = keyframes_since_full_ = 0;
+  last_full_stamp_ = ros::Time();
+  full_passes_left_ = 0;
+  last_chi2_ = kNaN;
+  finish_due_ = false;
+  last_finish_stamp_ = ros::Time();
+  // A finish still out belongs to the old graph: its merge is dropped by the structure.
+  ++structure_;
+  ++revision_;
+}
+
+void MapOptimizer::load(const toro::PoseGraph& graph, const std::vector<bool>& is_loop_closure,
+                        const std::vector<RejectedLoopClosure>& rejected, const ros::Time& newest) {
+  clear();
+  is_loop_closure_ = is_loop_closure;
+  replaceGraph(graph);
+  rejected_ = rejected;
+  last_full_stamp_ = newest;
+  // A saved map need not be at its optimum (it may have been saved between finishes).
+  finish_due_ = std::find(is_loop_closure_.begin(), is_loop_closure_.end(), true) != is_loop_closure_.end();
+}
+
+void MapOptimizer::applyLiveOptions(const OptimizationOptions& optimization, const toro::RobustOptions& robust,
+                                    double gate_threshold) {
+  // A round in progress does not run more passes than a round now has.
+  full_passes_left_ = std::min(full_passes_left_, optimization.full_iterations);
+  gate_threshold_ = gate_threshold;
+  const bool width_changed = robust.width != robust_.width;
+  options_ = optimization;
+  robust_ = robust;
+  if (width_changed && robust_.enabled()) {
+    // Every loop closure is weighed again with the new width, now.
+    robust_width_ = robust_.width;
+    optimizer_.setRobustWidth(robust_width_);
+    optimizer_.refreshWeights();
+    ++revision_;
+  }
+}
+
+// ---- robust weights ---------------------------------------------------------------------------
+
+void MapOptimizer::adaptRobustWidth() {
+  if (!robust_.enabled() || !(robust_.adaptive_width_factor > 0.0)) return;
+  // The statistic that decides acceptance is each loop closure's innovation when it arrived, so
+  // the width follows those of the accepted ones (settled residuals are far smaller, and would
+  // narrow the width below what the next right loop closure needs after some drift).
+  std::vector<double> accepted;
+  const std::vector<double>& arrival = optimizer_.arrivalChi2();
+  const std::vector<double>& weights = optimizer_.weights();
+  for (std::size_t c = 0; c < arrival.size(); ++c)
+    if (is_loop_closure_[c] && arrival[c] >= 0.0 && weights[c] >= toro::kRejectedWeight)
+      accepted.push_back(arrival[c]);
+  if (accepted.size() < kMinLoopClosuresToAdaptWidth) return;
+  // The median, not a high percentile: robust to the few wrong ones accepted before the width
+  // could narrow, and meaningful from a handful of loop closures on.
+  const auto middle = accepted.begin() + static_cast<std::ptrdiff_t>(accepted.size() / 2);
+  std::nth_element(accepted.begin(), middle, accepted.end());
+  const double adapted = std::min(robust_.width, kMedianWidthFactor * *middle);
+  // Only a clear change is worth it (each one re-weights every loop closure).
+  if (!(adapted > 0.0) || (adapted > robust_width_ / 1.5 && adapted < robust_width_ * 1.5)) return;
+  robust_width_ = adapted;
+  optimizer_.setRobustWidth(adapted);
+  optimizer_.refreshWeights();
+  ++revision_;
+}
+
+std::vector<DownWeightedLoopClosure> MapOptimizer::downWeighted() const {
+  std::vector<DownWeightedLoopClosure> out;
+  const toro::PoseGraph& g = optimizer_.graph();
+  const std::vector<double>& w = optimizer_.weights();
+  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
+    if (!is_loop_closure_[c] || !(w[c] < toro::kRejectedWeight)) continue;
+    const toro::Constraint& k = g.constraints()[c];
+    out.push_back(DownWeightedLoopClosure{k.from, k.to, w[c], toro::constraintChi2(g, c)});
+  }
+  return out;
+}
+
+// ---- the gate ---------------------------------------------------------------------------------
+
+void MapOptimizer::beginGate(const ros::Time& message_stamp) {
+  settleGate();
+  before_gate_ = optimizer_;
+  gate_constraint_ = optimizer_.graph().numConstraints();
+  gate_stamp_ = message_stamp;
+}
+
+void MapOptimizer::settleGate() {
+  if (!before_gate_) return;
+  if (affected_pending_) runAffectedPass();
+  const double own = toro::constraintChi2(optimizer_.graph(), gate_constraint_);
+  // TORO's pass is not the exact linear update: it may overshoot (a negative product) or leave
+  // more than the linear share, so the larger of both measures is tested.
+  const double chi2 =
+      std::max(own, std::abs(innovationChi2(before_gate_->graph(), optimizer_.graph(), gate_constraint_)));
+  if (!(chi2 <= gate_threshold_)) rejectCandidate(chi2);
+  before_gate_.reset();
+}
+
+void MapOptimizer::rejectCandidate(double chi2) {
+  const toro::PoseGraph now = optimizer_.graph();
+  const toro::Constraint candidate = now.constraints()[gate_constraint_];
+  optimizer_ = std::move(*before_gate_);
+  before_gate_.reset();
+  // Keyframes made while the candidate was on trial: each keeps its pose relative to the one
+  // before it, and the odometry constraints (every constraint after the candidate) are re-added.
+  for (std::size_t i = optimizer_.graph().numNodes(); i < now.numNodes(); ++i) {
+    const toro::Pose3 step = toro::relativePose(now.node(i - 1).pose, now.node(i).pose);
+    optimizer_.addNode(now.node(i).id, optimizer_.graph().node(i - 1).pose * step);
+  }
+  for (std::size_t c = gate_constraint_ + 1; c < now.numConstraints(); ++c)
+    optimizer_.addConstraint(now.constraints()[c]);
+  is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(gate_constraint_));
+  ++structure_;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  if (loop_closures_since_full_ > 0) --loop_closures_since_full_;
+  --counters_->loop_closures_applied;
+  ++counters_->loop_closures_rejected;
+  ++counters_->loop_closures_refused;
+  rejected_.push_back(RejectedLoopClosure{candidate, gate_stamp_, chi2});
+  refuse(kArrivalReason,
+         "loop closure " + std::to_string(candidate.from) + " -> " + std::to_string(candidate.to) +
+             " (message stamp " + stampString(gate_stamp_) + ") rejected: chi2 " + std::to_string(chi2) +
+             " after its pass exceeds " + std::to_string(gate_threshold_) + "; the graph is restored without it");
+}
+
+// A right loop closure can fail the gate because a wrong one that passed (the gate cannot know
+// better at the time) bends the map near it; the re-check removes the wrong one later, one per
+// round.  So when a round ends with no loop closure failing, each rejected one is tested again
+// against the map as it is now: if its chi2 at the current poses, before any pass (stricter than
+// the innovation test it failed), is within the threshold, the map agrees with it and it is
+// applied.  A wrong one never agrees with a right map.
+bool MapOptimizer::readmitRejected() {
+  const toro::PoseGraph& g = optimizer_.graph();
+  std::size_t readmitted = 0;
+  for (auto it = rejected_.begin(); it != rejected_.end();) {
+    const toro::Constraint& c = it->constraint;
+    if (!g.hasNode(c.from) || !g.hasNode(c.to)) {
+      ++it;
+      continue;
+    }
+    const toro::Vector6 e = toro::errorSE3(g.pose(c.from), g.pose(c.to), c.measurement);
+    if (!(e.dot(c.information * e) <= gate_threshold_)) {
+      ++it;
+      continue;
+    }
+    toro::Constraint loop_closure = c;
+    loop_closure.kind = toro::ConstraintKind::kLoopClosure;  // sidecar-loaded ones come as kAuto
+    optimizer_.addConstraint(loop_closure);
+    is_loop_closure_.push_back(true);
+    ++counters_->loop_closures_applied;
+    ++counters_->loop_closures_readmitted;
+    --counters_->loop_closures_rejected;
+    --counters_->loop_closures_refused;
+    // The counts by reason say how many are refused now, like loop_closures_rejected.
+    std::uint64_t& by_reason = counters_->refused_by_reason[it->stamp.isZero() ? kRecheckReason : kArrivalReason];
+    if (by_reason > 0) --by_reason;
+    it = rejected_.erase(it);
+    ++readmitted;
+  }
+  if (readmitted == 0) return false;
+  if (warn_) warn_(std::to_string(readmitted) + " rejected loop closure(s) re-admitted: the map agrees with them now");
+  affected_pending_ = true;
+  finish_due_ = true;
+  loop_closures_since_full_ += readmitted;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  ++revision_;
+  return true;
+}
+
+bool MapOptimizer::recheckLoopClosures() {
+  if (!gateEnabled() || before_gate_) return false;
+  const toro::PoseGraph& g = optimizer_.graph();
+  std::size_t worst = g.numConstraints();
+  double worst_chi2 = gate_threshold_;
+  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
+    if (!is_loop_closure_[c]) continue;
+    const double chi2 = toro::constraintChi2(g, c);
+    if (chi2 > worst_chi2) {
+      worst_chi2 = chi2;
+      worst = c;
+    }
+  }
+  if (worst == g.numConstraints()) return readmitRejected();
+  // Only the worst: one wrong loop closure inflates the residuals of right ones near it.
+  toro::PoseGraph without;
+  for (const toro::Node& n : g.nodes()) without.addNode(n.id, n.pose);
+  for (std::size_t c = 0; c < g.numConstraints(); ++c)
+    if (c != worst) without.addConstraint(g.constraints()[c]);
+  const toro::Constraint removed = g.constraints()[worst];
+  is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(worst));
+  replaceGraph(without);
+  finish_due_ = true;
+  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  --counters_->loop_closures_applied;
+  ++counters_->loop_closures_rejected;
+  ++counters_->loop_closures_refused;
+  rejected_.push_back(RejectedLoopClosure{removed, ros::Time(), worst_chi2});
+  refuse(kRecheckReason,
+         "loop closure " + std::to_string(removed.from) + " -> " + std::to_string(removed.to) + " removed: chi2 " +
+             std::to_string(worst_chi2) + " after a full round exceeds " + std::to_string(gate_threshold_));
+  return true;
+}
+
+}  // namespace toro_ros
