@@ -1,5 +1,6 @@
 #include "toro_ros/core/pose_graph.h"
 
+#include <cmath>
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <sstream>
@@ -92,6 +93,13 @@ std::size_t PoseGraph::addConstraint(const Constraint& constraint) {
   if (!reason.empty()) throw GraphError(reason);
   constraints_.push_back(constraint);
   return constraints_.size() - 1;
+}
+
+void PoseGraph::scaleInformation(std::size_t c, double factor) {
+  if (c >= constraints_.size()) throw GraphError("no constraint " + std::to_string(c));
+  if (!(std::isfinite(factor) && factor > 0.0))
+    throw GraphError("information scale factor must be finite and > 0, not " + std::to_string(factor));
+  constraints_[c].information *= factor;
 }
 
 std::size_t PoseGraph::indexOf(NodeId id) const {

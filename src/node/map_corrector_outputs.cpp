@@ -1,6 +1,7 @@
 // Outputs of MapCorrectorNode: map->odom on tf, the corrected pose at the odometry rate, the
 // whole graph (~graph), path and markers, diagnostics.
 #include <cmath>
+#include <sstream>
 
 #include <geometry_msgs/TransformStamped.h>
 
@@ -162,6 +163,18 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
                  std::to_string(s->counters.loop_closures_partly_default));
   status.add("autosaves", s->counters.autosaves);
   status.add("autosave failures", s->counters.autosave_failures);
+  status.add("background finishes (started / merged / dropped)",
+             std::to_string(s->counters.finishes_started) + " / " + std::to_string(s->counters.finishes_merged) +
+                 " / " + std::to_string(s->counters.finishes_dropped));
+  status.add("background finish running", s->finish_running ? "yes" : "no");
+  if (s->last_finish) {
+    const FinishRecord& f = *s->last_finish;
+    std::ostringstream last;
+    last << (f.merged ? "merged" : "not merged: " + f.error) << "; taken at " << f.stamp.toSec() << " s, "
+         << f.seconds << " s, chi2 " << f.chi2_before << " -> " << f.chi2_after << ", " << f.iterations
+         << " iterations, " << f.nodes_added_since << " keyframes added meanwhile";
+    status.add("last background finish", last.str());
+  }
   status.add("last chi2", s->chi2);
   status.add("last optimization sec", s->last_optimization_sec);
 }

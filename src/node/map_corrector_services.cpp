@@ -104,6 +104,21 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
     res.down_weighted_loop_closures.push_back(line.str());
   }
   res.robust_width = r->robust_width;
+  res.finishes_started = r->counters.finishes_started;
+  res.finishes_merged = r->counters.finishes_merged;
+  res.finishes_dropped = r->counters.finishes_dropped;
+  res.finish_running = r->finish_running;
+  if (r->last_finish) {
+    const FinishRecord& f = *r->last_finish;
+    res.last_finish_merged = f.merged;
+    res.last_finish_error = f.error;
+    res.last_finish_stamp = f.stamp.toSec();
+    res.last_finish_sec = f.seconds;
+    res.last_finish_chi2_before = f.chi2_before;
+    res.last_finish_chi2_after = f.chi2_after;
+    res.last_finish_iterations = f.iterations;
+    res.last_finish_keyframes_added_since = f.nodes_added_since;
+  }
   res.queue_dropped = worker_->dropped();
   res.last_chi2 = r->last_chi2;
   res.last_optimization_sec = r->last_optimization_sec;

@@ -123,6 +123,9 @@ void readPipeline(ParamReader& r, PipelineOptions& p) {
   r.read("optimization_full_every_keyframes", p.optimization.full_every_keyframes);
   r.read("optimization_full_every_sec", p.optimization.full_every_sec);
   r.read("optimization_service_default_iterations", p.optimization.service_default_iterations);
+  r.read("optimization_background_finish", p.optimization.background_finish);
+  r.read("optimization_finish_min_interval_sec", p.optimization.finish_min_interval_sec);
+  r.read("optimization_finish_max_iterations", p.optimization.finish_max_iterations);
   r.read("planar", p.planar);
   r.read("time_jump_reset_sec", p.time_jump_reset_sec);
   r.read("odometry_history_sec", p.odometry_history_sec);

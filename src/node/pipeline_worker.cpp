@@ -19,9 +19,30 @@ PipelineWorker::PipelineWorker(std::unique_ptr<Pipeline> pipeline, std::size_t q
 PipelineWorker::~PipelineWorker() { stop(); }
 
 void PipelineWorker::stop() {
+  cancel_finish_ = true;
   queue_.stop();
   if (thread_.joinable()) thread_.join();
+  if (finish_thread_.joinable()) finish_thread_.join();
   stopped_ = true;
+}
+
+void PipelineWorker::startFinishIfDue() {
+  if (finish_running_) return;
+  std::optional<FinishJob> job = pipeline_->takeFinishJob();
+  if (!job) return;
+  if (finish_thread_.joinable()) finish_thread_.join();  // the previous one has posted its merge
+  finish_running_ = true;
+  finish_thread_ = std::thread([this, job = std::move(*job)]() mutable {
+    auto outcome = std::make_shared<const FinishOutcome>(
+        runFinishJob(std::move(job), [this] { return cancel_finish_.load(); }));
+    // The merge is a command like any other: it runs between passes, on the worker thread, and
+    // the snapshot published after it is the first to show the finished map.  A merge queued
+    // after stop() is simply never run.
+    queue_.pushAlways(Item(Command([this, outcome](Pipeline& pipeline) {
+      finish_running_ = false;
+      pipeline.mergeFinish(*outcome);
+    })));
+  });
 }
 
 Pipeline& PipelineWorker::pipeline() {
@@ -76,6 +97,7 @@ void PipelineWorker::loop() {
     batch.clear();
     pipeline_->runScheduledOptimization();
     if (pipeline_->revision() != before) publishSnapshot();
+    startFinishIfDue();
   }
 }
 

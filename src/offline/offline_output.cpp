@@ -122,6 +122,7 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
       << ",\n  \"loop_closures_refused\": " << k.loop_closures_refused
       << ",\n  \"loop_closures_pending\": " << s.status.pending_loop_closures
       << ",\n  \"optimization_passes\": " << k.optimization_passes
+      << ",\n  \"finishes\": " << s.run.finishes << ",\n  \"finishes_merged\": " << k.finishes_merged
       << ",\n  \"odometry_covariance_rule\": " << jsonString(s.status.odometry_covariance_rule)
       << ",\n  \"odometry_steps_default\": " << k.odometry_steps_default
       << ",\n  \"odometry_steps_partly_default\": " << k.odometry_steps_partly_default
@@ -231,7 +232,7 @@ std::string describeSummary(const OfflineSummary& s) {
       << k.loop_closures_applied << " applied, " << k.loop_closures_refused << " refused, "
       << s.status.pending_loop_closures << " pending\n"
       << "chi2 before (odometry) " << s.chi2_odometry << ", after " << s.chi2_corrected << " ("
-      << k.optimization_passes << " passes)\n";
+      << k.optimization_passes << " passes, " << s.run.finishes << " finishes)\n";
   if (s.has_score) out << describeScore(s.score);
   return out.str();
 }

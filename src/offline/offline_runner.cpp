@@ -95,15 +95,27 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
 }
 
 void OfflineRunner::drainSchedule(double stamp_sec, OfflineRun* run) {
-  // As the node's worker: after the input, run passes until nothing is due.
+  const auto record = [&] {
+    const PipelineStatus s = pipeline_->status();
+    run->curve.push_back(
+        CurvePoint{run->curve.size() + 1, stamp_sec, s.keyframes, s.constraints, s.last_chi2, false});
+  };
+  // As the node's worker: after the input, run passes until nothing is due...
   do {
     const auto t0 = Clock::now();
     if (!pipeline_->runScheduledOptimization()) break;
     run->optimization_sec += since(t0);
-    const PipelineStatus s = pipeline_->status();
-    run->curve.push_back(
-        CurvePoint{run->curve.size() + 1, stamp_sec, s.keyframes, s.constraints, s.last_chi2, false});
+    record();
   } while (pipeline_->hasScheduledWork());
+  // ...and a background finish where the node would start one, run inline and merged at once, so
+  // the run is deterministic (the node merges it when its thread is done, a little later).
+  if (std::optional<FinishJob> job = pipeline_->takeFinishJob()) {
+    const auto t0 = Clock::now();
+    pipeline_->mergeFinish(runFinishJob(std::move(*job)));
+    run->optimization_sec += since(t0);
+    ++run->finishes;
+    record();
+  }
 }
 
 void OfflineRunner::traceRobot(const rosbag::MessageInstance& m, OfflineRun* run) const {

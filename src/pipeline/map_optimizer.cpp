@@ -86,13 +86,32 @@ FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled
   out.sequence = job.sequence;
   out.structure = job.structure;
   out.stamp = job.stamp;
+  out.constraints = job.graph.numConstraints();
   try {
+    toro::PoseGraph& g = job.graph;
+    if (job.weights.size() != g.numConstraints()) throw std::invalid_argument("one weight per constraint expected");
+    const double drop_below = job.options.robust_set_aside_weight;
+    if (std::any_of(job.weights.begin(), job.weights.end(), [&](double w) { return w < drop_below; })) {
+      toro::PoseGraph kept;
+      kept.setDimension(g.dimension());
+      for (const toro::Node& n : g.nodes()) kept.addNode(n.id, n.pose);
+      for (toro::NodeId id : g.fixedNodes()) kept.addFixed(id);
+      for (std::size_t c = 0; c < g.numConstraints(); ++c)
+        if (!(job.weights[c] < drop_below)) kept.addConstraint(g.constraints()[c]);
+      std::vector<double> weights;
+      for (double w : job.weights)
+        if (!(w < drop_below)) weights.push_back(w);
+      g = std::move(kept);
+      job.weights = std::move(weights);
+    }
+    for (std::size_t c = 0; c < g.numConstraints(); ++c)
+      if (job.weights[c] < 1.0) g.scaleInformation(c, job.weights[c]);
     toro::FinishCallback callback;
     if (cancelled)
       callback = [&cancelled](const toro::FinishIteration&) {
         if (cancelled()) throw FinishCancelled{};
       };
-    const toro::FinishReport report = toro::LevenbergMarquardt(job.options).optimize(job.graph, callback);
+    const toro::FinishReport report = toro::LevenbergMarquardt(job.options).optimize(g, callback);
     out.chi2_before = report.initial_chi2;
     out.chi2_after = report.final_chi2;
     out.iterations = report.iterations;
@@ -218,20 +237,20 @@ bool MapOptimizer::runScheduledStep(const ros::Time& now) {
   return true;
 }
 
-toro::FinishOptions MapOptimizer::finishOptions(unsigned iterations) const {
-  toro::FinishOptions o;
-  if (iterations > 0) o.max_iterations = iterations;
-  o.robust = optimizerOptions().robust;
-  if (!toro::cholmodAvailable()) o.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
-  return o;
-}
-
-OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
+FinishJob MapOptimizer::makeFinishJob(unsigned iterations) const {
   FinishJob job;
   job.structure = structure_;
   job.graph = optimizer_.graph();
-  job.options = finishOptions(iterations);
-  const FinishOutcome outcome = runFinishJob(std::move(job));
+  job.weights = optimizer_.weights();
+  if (iterations > 0) job.options.max_iterations = iterations;
+  // The weights above are the robust part: the finish itself is plain least squares.
+  job.options.robust = toro::RobustOptions{};
+  if (!toro::cholmodAvailable()) job.options.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
+  return job;
+}
+
+OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
+  const FinishOutcome outcome = runFinishJob(makeFinishJob(iterations));
   OptimizeResult r;
   if (!outcome.success) {
     r.message = outcome.error;
@@ -279,7 +298,7 @@ OptimizeResult MapOptimizer::optimize(unsigned iterations, bool finish) {
   last_optimization_sec_ = r.time_sec;
   r.success = true;
   r.message = std::to_string(r.iterations) + " full passes";
-  if (options_.background_finish) {
+  if (options_.background_finish && finishDetermined()) {
     // TORO's passes end near the optimum, not at it; with the finish on, the map a full ~optimize
     // leaves is the optimum (what the background finish would reach a moment later).
     const OptimizeResult f = finishNow(0);
@@ -296,18 +315,28 @@ OptimizeResult MapOptimizer::optimize(unsigned iterations, bool finish) {
 
 // ---- the background finish ------------------------------------------------------------------
 
+bool MapOptimizer::finishDetermined() {
+  const std::size_t unmeasured = optimizer_.constraintsWithUnmeasuredAxes();
+  if (unmeasured == 0) return true;
+  if (!told_finish_undetermined_ && warn_)
+    warn_("background finish off for this map: " + std::to_string(unmeasured) +
+          " constraint(s) leave axes unmeasured (e.g. z, roll and pitch of a robot on a floor).  TORO moves "
+          "such constraints along their measured axes only, but the exact optimum of such a graph is not "
+          "determined along the others (it tilts the map to shorten its paths); for a robot on a floor set "
+          "planar: true, where the finish runs in the plane");
+  told_finish_undetermined_ = true;
+  return false;
+}
+
 std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
   if (!options_.background_finish || !finish_due_ || finish_outstanding_ || before_gate_ ||
-      optimizer_.graph().numConstraints() == 0)
+      optimizer_.graph().numConstraints() == 0 || !finishDetermined())
     return std::nullopt;
   if (!last_finish_stamp_.isZero() && (now - last_finish_stamp_).toSec() < options_.finish_min_interval_sec)
     return std::nullopt;
-  FinishJob job;
+  FinishJob job = makeFinishJob(static_cast<unsigned>(options_.finish_max_iterations));
   job.sequence = ++finish_sequence_;
-  job.structure = structure_;
   job.stamp = now;
-  job.graph = optimizer_.graph();
-  job.options = finishOptions(static_cast<unsigned>(options_.finish_max_iterations));
   finish_due_ = false;
   finish_outstanding_ = true;
   last_finish_stamp_ = now;
@@ -328,7 +357,7 @@ bool MapOptimizer::mergeFinish(const FinishOutcome& outcome) {
   record.iterations = outcome.iterations;
   const toro::PoseGraph& g = optimizer_.graph();
   const std::size_t nodes = outcome.graph.numNodes();
-  const std::size_t constraints = outcome.graph.numConstraints();
+  const std::size_t constraints = outcome.constraints;
   if (!outcome.success || outcome.structure != structure_ || nodes > g.numNodes() ||
       constraints > g.numConstraints()) {
     record.error = !outcome.success ? outcome.error : "the graph was reset, loaded or lost a constraint meanwhile";
@@ -421,8 +450,9 @@ void MapOptimizer::load(const toro::PoseGraph& graph, const std::vector<bool>& i
   replaceGraph(graph);
   rejected_ = rejected;
   last_full_stamp_ = newest;
-  // A saved map need not be at its optimum (it may have been saved between finishes).
-  finish_due_ = std::find(is_loop_closure_.begin(), is_loop_closure_.end(), true) != is_loop_closure_.end();
+  // The map stays as it was saved until new input arrives (a saved map is usually a finished one;
+  // the next loop closure brings a finish anyway).
+  finish_due_ = false;
 }
 
 void MapOptimizer::applyLiveOptions(const OptimizationOptions& optimization, const toro::RobustOptions& robust,

@@ -358,6 +358,8 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
   s->last_optimization_sec = map_.lastOptimizationSec();
   s->pending_loop_closures = matcher_.pending();
   s->counters = counters_;
+  s->last_finish = map_.lastFinish();
+  s->finish_running = map_.finishOutstanding();
   return s;
 }
 

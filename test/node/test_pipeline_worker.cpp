@@ -13,6 +13,8 @@
 #include <gtest/gtest.h>
 
 #include "../pipeline/drift_scenario.h"
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/node/pipeline_worker.h"
 
 using namespace toro_ros;
@@ -126,6 +128,7 @@ TEST(PipelineWorker, CommandsAreAnsweredBetweenPassesOfARunningRound) {
   PipelineOptions o = options();
   o.optimization.full_every_keyframes = 1;
   o.optimization.full_iterations = 1000000;  // a round that outlasts the test
+  o.optimization.background_finish = false;  // a finish would stand in for the round
   Errors errors;
   PipelineWorker worker(std::make_unique<Pipeline>(o), 100000, errors.sink());
   const std::size_t last = sc.odometry.size() - 1;
@@ -270,5 +273,39 @@ TEST(PipelineWorker, ObserverSeesEachSnapshotWithTheStateItWasMadeFrom) {
   EXPECT_EQ(mismatches, 0);
   EXPECT_FALSE(out_of_order);
   EXPECT_EQ(worker.snapshot()->generation, last_generation);
+  EXPECT_TRUE(errors.texts.empty());
+}
+
+// The background finish runs beside the worker: the worker keeps answering while it runs, and its
+// merge is published like any other change, bringing the snapshot to the optimum.
+TEST(PipelineWorker, BackgroundFinishIsMergedAndPublished) {
+  const DriftScenario sc = makeDriftingSquare();
+  PipelineOptions o = toro_ros::testing::baseTestOptions();
+  o.optimization.full_iterations = 0;
+  o.optimization.background_finish = true;
+  o.optimization.finish_min_interval_sec = 0.0;
+  Errors errors;
+  PipelineWorker worker(std::make_unique<Pipeline>(o), 100000, errors.sink());
+  const std::size_t last = sc.odometry.size() - 1;
+  for (const nav_msgs::Odometry& m : sc.odometry) worker.push(message(m));
+  worker.push(message(trueLoopClosure(sc, 0, last)));
+  PipelineStatus s;
+  for (int i = 0; i < 3000 && s.counters.finishes_merged == 0; ++i) {
+    s = status(worker);
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  ASSERT_EQ(s.counters.finishes_merged, 1u);
+  EXPECT_EQ(s.counters.finishes_started, 1u);
+  EXPECT_FALSE(s.finish_running);
+  const std::shared_ptr<const Snapshot> snapshot = worker.snapshot();
+  ASSERT_TRUE(snapshot->last_finish);
+  EXPECT_TRUE(snapshot->last_finish->merged);
+  worker.stop();
+  // The published chi2 is the optimum's.
+  toro::PoseGraph best = worker.pipeline().graph();
+  toro::FinishOptions fo;
+  if (!toro::cholmodAvailable()) fo.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
+  toro::LevenbergMarquardt(fo).optimize(best);
+  EXPECT_NEAR(snapshot->chi2, toro::g2oChi2(best), 1e-6 * toro::g2oChi2(best));
   EXPECT_TRUE(errors.texts.empty());
 }

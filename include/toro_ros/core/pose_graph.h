@@ -60,6 +60,10 @@ class PoseGraph {
   // Adds a constraint after validation (see validateConstraint); returns its index.
   std::size_t addConstraint(const Constraint& constraint);
 
+  // Multiplies constraint c's information by `factor` (> 0 and finite, else GraphError): a
+  // positive multiple of a valid information is valid, so no re-validation is needed.
+  void scaleInformation(std::size_t c, double factor);
+
   // Empty string if the constraint is acceptable for this graph, otherwise the reason.
   // Checks: finite measurement and information, symmetric positive-definite information,
   // both endpoints known, no self-loop.

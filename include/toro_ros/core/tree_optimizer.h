@@ -146,6 +146,11 @@ class TreeOptimizer {
 
   // The graph with the current pose estimates (2D, exactly planar, when planar()).
   const PoseGraph& graph() const { return graph_; }
+  // Constraints with an axis whose information is negligible (kUnmeasuredInformationRatio): the
+  // passes move them along their measured axes only.
+  std::size_t constraintsWithUnmeasuredAxes() const {
+    return planar_ ? planar_state_.measured_axes.size() : spatial_.measured_axes.size();
+  }
   // Whether the parameters are SE(2) (see Parameterization).
   bool planar() const { return planar_; }
   const ParameterTree& tree() const { return tree_; }

@@ -1,6 +1,8 @@
 // The thread that owns a Pipeline: messages in through a bounded queue (never blocking the
 // caller), commands in through the same queue with a future for their answer, results out as
-// immutable Snapshots.  No ROS transport here (no NodeHandle, no spinning), so the threading is
+// immutable Snapshots.  The pipeline's background finish runs in a second thread on its own copy
+// of the graph; its outcome comes back through the queue as a command (the merge), so the
+// pipeline is only ever touched by the worker thread and input never waits for a finish.  No ROS transport here (no NodeHandle, no spinning), so the threading is
 // tested by a plain gtest under ThreadSanitizer (test/node/test_pipeline_worker.cpp);
 // MapCorrectorNode only wires subscriptions, services and timers to it.
 #pragma once
@@ -61,7 +63,7 @@ class PipelineWorker {
   std::uint64_t dropped() const { return queue_.dropped(); }
 
   // Stops the thread (input still queued is not applied: a shutdown should not wait for a
-  // backlog) and joins it.  Idempotent.  Afterwards pipeline() may be used by the caller's thread.
+  // backlog; a running finish is cancelled at its next iteration) and joins it.  Idempotent.  Afterwards pipeline() may be used by the caller's thread.
   void stop();
   Pipeline& pipeline();  // only after stop()
 
@@ -70,6 +72,8 @@ class PipelineWorker {
   void loop();
   void process(Item& item);
   void publishSnapshot();
+  // Hands a due finish job to the finish thread (when none is running).
+  void startFinishIfDue();
 
   std::unique_ptr<Pipeline> pipeline_;  // touched only by the worker thread until stop()
   ErrorSink on_error_;
@@ -79,6 +83,11 @@ class PipelineWorker {
   mutable std::mutex snapshot_mutex_;  // guards snapshot_ (the pointer, not the pointee)
   std::shared_ptr<const Snapshot> snapshot_;
   std::thread thread_;
+  // The finish thread: at most one at a time, started by the worker thread (only it touches
+  // finish_thread_), cancelled by stop().
+  std::thread finish_thread_;
+  std::atomic<bool> finish_running_{false};
+  std::atomic<bool> cancel_finish_{false};
 };
 
 template <class R>

@@ -49,7 +49,8 @@ struct OfflineRun {
   std::map<std::string, std::size_t> messages_by_topic;
   double bag_duration_sec = 0.0;
   double wall_sec = 0.0;          // everything from opening the bag to the end of the final passes
-  double optimization_sec = 0.0;  // part of it spent in optimisation passes
+  double optimization_sec = 0.0;  // part of it spent in optimisation passes and finishes
+  std::size_t finishes = 0;       // background finishes run (inline, see drainSchedule)
   std::vector<CurvePoint> curve;
   OptimizeResult final_result;
   // Where the node would have shown the robot after each odometry message: map_T_odom of the

@@ -65,7 +65,13 @@ struct FinishJob {
   std::uint64_t structure = 0;  // MapOptimizer's structure version when it was taken
   ros::Time stamp;              // newest message time then
   toro::PoseGraph graph;        // the graph then; its poses (the current estimate) are the warm start
-  toro::FinishOptions options;  // the robust weights as the TORO passes use them
+  // Each constraint's robust weight as TORO's passes use it (1 for odometry): the finish minimises
+  // the chi2 with the loop closures' information scaled by them, so it agrees with the passes on
+  // which loop closures count (its own re-weighting by plain residuals would judge a right loop
+  // closure that closes a long drifted loop by the drift and drop it).  Loop closures weighted
+  // below toro::FinishOptions's set-aside weight are left out (they only add fill-in).
+  std::vector<double> weights;
+  toro::FinishOptions options;
 };
 
 struct FinishOutcome {
@@ -74,7 +80,8 @@ struct FinishOutcome {
   ros::Time stamp;
   bool success = false;
   std::string error;      // when not success
-  toro::PoseGraph graph;  // the job's graph with the finished poses
+  toro::PoseGraph graph;  // the job's nodes with the finished poses (and the constraints it used)
+  std::size_t constraints = 0;  // constraints of the map when the job was taken
   double chi2_before = 0.0;
   double chi2_after = 0.0;
   std::size_t iterations = 0;
@@ -85,18 +92,6 @@ struct FinishOutcome {
 // reported in the outcome.  `cancelled` (optional) is polled after every iteration: when it
 // returns true the finish stops and the outcome says so (not success).
 FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled = {});
-
-// What the last finish did, for ~get_status and diagnostics.
-struct FinishRecord {
-  bool merged = false;      // its result was taken into the map (else dropped, or failed: error)
-  std::string error;        // why it was dropped or failed ("" when merged)
-  ros::Time stamp;          // message time when it was taken
-  double seconds = 0.0;     // its wall time
-  double chi2_before = 0.0;  // g2o chi2 of its graph before and after
-  double chi2_after = 0.0;
-  std::size_t iterations = 0;
-  std::size_t nodes_added_since = 0;  // keyframes that arrived while it ran (moved with their parents)
-};
 
 class MapOptimizer {
  public:
@@ -163,7 +158,9 @@ class MapOptimizer {
   void runAffectedPass();
   void runFullPass();
   OptimizeResult finishNow(unsigned iterations);
-  toro::FinishOptions finishOptions(unsigned iterations) const;
+  FinishJob makeFinishJob(unsigned iterations) const;
+  // False (and said once) when constraints leave axes unmeasured: the background finish is off.
+  bool finishDetermined();
   // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints.
   void replaceGraph(const toro::PoseGraph& graph);
   void adaptRobustWidth();
@@ -204,6 +201,7 @@ class MapOptimizer {
   // cannot be merged.
   std::uint64_t structure_ = 0;
   std::optional<FinishRecord> last_finish_;
+  bool told_finish_undetermined_ = false;
   // The gate's candidate: the optimiser as it was before it, its constraint index and stamp.
   std::optional<toro::TreeOptimizer> before_gate_;
   std::size_t gate_constraint_ = 0;

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -73,6 +74,18 @@ struct DownWeightedLoopClosure {
   double chi2 = 0.0;    // its g2o chi2 at the corrected poses
 };
 
+// What the last finish did, for ~get_status and diagnostics.
+struct FinishRecord {
+  bool merged = false;      // its result was taken into the map (else dropped, or failed: error)
+  std::string error;        // why it was dropped or failed ("" when merged)
+  ros::Time stamp;          // message time when it was taken
+  double seconds = 0.0;     // its wall time
+  double chi2_before = 0.0;  // g2o chi2 of its graph before and after
+  double chi2_after = 0.0;
+  std::size_t iterations = 0;
+  std::size_t nodes_added_since = 0;  // keyframes that arrived while it ran (moved with their parents)
+};
+
 struct Snapshot {
   std::uint64_t generation = 0;  // increases with every snapshot the pipeline makes
   std::uint64_t epoch = 0;       // increases with every reset/load: publishers clear old markers
@@ -90,6 +103,8 @@ struct Snapshot {
   double last_optimization_sec = 0.0;
   std::size_t pending_loop_closures = 0;
   PipelineCounters counters;
+  std::optional<FinishRecord> last_finish;  // the newest background finish (nullopt before any)
+  bool finish_running = false;
 };
 
 }  // namespace toro_ros

@@ -1,0 +1,252 @@
+// The background finish (MapOptimizer::takeFinishJob / runFinishJob / mergeFinish) driven through
+// the Pipeline, as the node's worker and the offline runner drive it.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "drift_scenario.h"
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/core/sparse_finisher.h"
+#include "toro_ros/pipeline/pipeline.h"
+
+namespace toro_ros {
+namespace {
+
+using testing::DriftScenario;
+using testing::baseTestOptions;
+using testing::drain;
+using testing::makeDriftingSquare;
+using testing::trueLoopClosure;
+
+PipelineOptions finishOptions() {
+  PipelineOptions o = baseTestOptions();
+  o.optimization.full_iterations = 0;  // no rounds: what moves the map is the pass and the finish
+  o.optimization.background_finish = true;
+  o.optimization.finish_min_interval_sec = 0.0;
+  return o;
+}
+
+// Feeds odometry samples [from, to) and drains the schedule after each.
+void feed(Pipeline& p, const DriftScenario& sc, std::size_t from, std::size_t to) {
+  for (std::size_t i = from; i < to; ++i) {
+    p.handleOdometry(sc.odometry[i]);
+    drain(p);
+  }
+}
+
+// The optimum of `graph` by the plain (non-robust) finish from its poses.
+toro::PoseGraph optimum(toro::PoseGraph graph) {
+  toro::FinishOptions o;
+  if (!toro::cholmodAvailable()) o.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
+  toro::LevenbergMarquardt(o).optimize(graph);
+  return graph;
+}
+
+double maxPositionDifference(const toro::PoseGraph& a, const toro::PoseGraph& b, std::size_t nodes) {
+  double d = 0.0;
+  for (std::size_t i = 0; i < nodes; ++i)
+    d = std::max(d, (a.node(i).pose.translation() - b.node(i).pose.translation()).norm());
+  return d;
+}
+
+TEST(BackgroundFinish, MergedFinishIsTheOptimumAndTorosPassWasNot) {
+  const DriftScenario sc = makeDriftingSquare();
+  Pipeline p(finishOptions());
+  const std::size_t last = sc.odometry.size() - 1;
+  feed(p, sc, 0, sc.odometry.size());
+  EXPECT_FALSE(p.takeFinishJob());  // odometry alone: nothing to finish
+  p.handleLoopClosure(trueLoopClosure(sc, 0, last));
+  drain(p);
+  const double after_pass = toro::g2oChi2(p.graph());
+  const toro::PoseGraph best = optimum(p.graph());
+  const double best_chi2 = toro::g2oChi2(best);
+  ASSERT_GT(after_pass, best_chi2 * 1.01);  // one TORO pass stops above the optimum
+
+  std::optional<FinishJob> job = p.takeFinishJob();
+  ASSERT_TRUE(job);
+  EXPECT_FALSE(p.takeFinishJob());  // one at a time
+  const FinishOutcome outcome = runFinishJob(std::move(*job));
+  ASSERT_TRUE(outcome.success) << outcome.error;
+  EXPECT_TRUE(p.mergeFinish(outcome));
+  EXPECT_NEAR(toro::g2oChi2(p.graph()), best_chi2, 1e-6 * best_chi2);
+  EXPECT_LT(maxPositionDifference(p.graph(), best, best.numNodes()), 1e-6);
+  const PipelineStatus s = p.status();
+  EXPECT_EQ(s.counters.finishes_started, 1u);
+  EXPECT_EQ(s.counters.finishes_merged, 1u);
+  ASSERT_TRUE(s.last_finish);
+  EXPECT_TRUE(s.last_finish->merged);
+  EXPECT_NEAR(s.last_finish->chi2_after, best_chi2, 1e-6 * best_chi2);
+  EXPECT_NEAR(s.last_chi2, toro::g2oChi2(p.graph()), 1e-9 * best_chi2);
+  EXPECT_FALSE(p.takeFinishJob());  // nothing new since
+}
+
+TEST(BackgroundFinish, KeyframesAndLoopClosuresThatArriveDuringAFinishFollowIt) {
+  const DriftScenario sc = makeDriftingSquare(3);
+  Pipeline p(finishOptions());
+  const std::size_t lap = sc.odometry.size() / 3;
+  feed(p, sc, 0, 2 * lap + 1);
+  p.handleLoopClosure(trueLoopClosure(sc, 0, 2 * lap));
+  drain(p);
+  std::optional<FinishJob> job = p.takeFinishJob();
+  ASSERT_TRUE(job);
+  const std::size_t nodes_at_job = p.graph().numNodes();
+  // While it "runs": more keyframes, and a loop closure between them and the first lap.
+  feed(p, sc, 2 * lap + 1, 2 * lap + lap / 2);
+  p.handleLoopClosure(trueLoopClosure(sc, lap / 4, 2 * lap + lap / 4));
+  drain(p);
+  const toro::PoseGraph before_merge = p.graph();
+  const std::size_t newer_loop_closure = before_merge.numConstraints() - 1;
+  ASSERT_GT(before_merge.numNodes(), nodes_at_job + 3);
+
+  const FinishOutcome outcome = runFinishJob(std::move(*job));
+  ASSERT_TRUE(outcome.success);
+  ASSERT_TRUE(p.mergeFinish(outcome));
+  const toro::PoseGraph& merged = p.graph();
+  ASSERT_EQ(merged.numNodes(), before_merge.numNodes());
+  // The newer loop closure got its pass again on the finished poses: its residual is as small as
+  // its pass left it before the merge (not back at its arrival value).
+  const double before = toro::constraintChi2(before_merge, newer_loop_closure);
+  const double after = toro::constraintChi2(merged, newer_loop_closure);
+  EXPECT_LT(after, 2.0 * before + 1e-9);
+  EXPECT_EQ(p.status().last_finish->nodes_added_since, before_merge.numNodes() - nodes_at_job);
+  // It is not in the finished map yet: another finish is due.
+  std::optional<FinishJob> next = p.takeFinishJob();
+  ASSERT_TRUE(next);
+  ASSERT_TRUE(p.mergeFinish(runFinishJob(std::move(*next))));
+  const toro::PoseGraph best = optimum(p.graph());
+  EXPECT_NEAR(toro::g2oChi2(p.graph()), toro::g2oChi2(best), 1e-6 * toro::g2oChi2(best));
+}
+
+TEST(BackgroundFinish, NewerNodesKeepTheirPoseRelativeToTheirParent) {
+  const DriftScenario sc = makeDriftingSquare();
+  Pipeline p(finishOptions());
+  const std::size_t last = sc.odometry.size() - 1;
+  feed(p, sc, 0, last - 30);
+  p.handleLoopClosure(trueLoopClosure(sc, 0, last - 31));
+  drain(p);
+  std::optional<FinishJob> job = p.takeFinishJob();
+  ASSERT_TRUE(job);
+  const std::size_t nodes_at_job = p.graph().numNodes();
+  feed(p, sc, last - 30, sc.odometry.size());  // odometry only: newer nodes on a chain
+  const toro::PoseGraph before_merge = p.graph();
+  ASSERT_GT(before_merge.numNodes(), nodes_at_job + 2);
+  ASSERT_TRUE(p.mergeFinish(runFinishJob(std::move(*job))));
+  const toro::PoseGraph& merged = p.graph();
+  // Old nodes moved (the finish corrected them) ...
+  EXPECT_GT(maxPositionDifference(before_merge, merged, nodes_at_job), 1e-3);
+  // ... and each newer one kept its pose relative to the one before it (its parent): no jump.
+  for (std::size_t i = nodes_at_job; i < merged.numNodes(); ++i) {
+    const toro::Pose3 was = toro::relativePose(before_merge.node(i - 1).pose, before_merge.node(i).pose);
+    const toro::Pose3 now = toro::relativePose(merged.node(i - 1).pose, merged.node(i).pose);
+    EXPECT_LT((was.translation() - now.translation()).norm(), 1e-9) << i;
+    EXPECT_LT(toro::relativePose(was, now).angle(), 1e-9) << i;
+  }
+}
+
+TEST(BackgroundFinish, AFinishOfAGraphThatWasResetMeanwhileIsDropped) {
+  const DriftScenario sc = makeDriftingSquare();
+  Pipeline p(finishOptions());
+  const std::size_t last = sc.odometry.size() - 1;
+  feed(p, sc, 0, sc.odometry.size());
+  p.handleLoopClosure(trueLoopClosure(sc, 0, last));
+  drain(p);
+  std::optional<FinishJob> job = p.takeFinishJob();
+  ASSERT_TRUE(job);
+  p.reset("test");
+  feed(p, sc, 0, 20);  // a new graph, as large as the old one's first keyframes
+  const toro::PoseGraph fresh = p.graph();
+  EXPECT_FALSE(p.mergeFinish(runFinishJob(std::move(*job))));
+  EXPECT_EQ(maxPositionDifference(fresh, p.graph(), fresh.numNodes()), 0.0);
+  const PipelineStatus s = p.status();
+  EXPECT_EQ(s.counters.finishes_dropped, 1u);
+  EXPECT_EQ(s.counters.finishes_merged, 0u);
+  ASSERT_TRUE(s.last_finish);
+  EXPECT_FALSE(s.last_finish->merged);
+  EXPECT_NE(s.last_finish->error.find("reset"), std::string::npos);
+}
+
+TEST(BackgroundFinish, AtMostOnePerMinimumIntervalOfMessageTimeAndOffWhenDisabled) {
+  const DriftScenario sc = makeDriftingSquare(3);
+  PipelineOptions o = finishOptions();
+  o.optimization.finish_min_interval_sec = 5.0;
+  Pipeline p(o);
+  const std::size_t lap = sc.odometry.size() / 3;  // 20 s of message time
+  feed(p, sc, 0, lap + 1);
+  p.handleLoopClosure(trueLoopClosure(sc, 0, lap));
+  drain(p);
+  std::optional<FinishJob> first = p.takeFinishJob();
+  ASSERT_TRUE(first);
+  ASSERT_TRUE(p.mergeFinish(runFinishJob(std::move(*first))));
+  feed(p, sc, lap + 1, lap + 11);  // 1 s later
+  p.handleLoopClosure(trueLoopClosure(sc, 5, lap + 5));
+  drain(p);
+  EXPECT_FALSE(p.takeFinishJob());  // due, but only 1 s after the last one started
+  feed(p, sc, lap + 11, lap + 51);  // 5 s after it
+  EXPECT_TRUE(p.takeFinishJob());
+
+  o.optimization.background_finish = false;
+  Pipeline off(o);
+  feed(off, sc, 0, lap + 1);
+  off.handleLoopClosure(trueLoopClosure(sc, 0, lap));
+  drain(off);
+  EXPECT_FALSE(off.takeFinishJob());
+}
+
+TEST(BackgroundFinish, FullOptimizeEndsAtTheOptimumWhenOn) {
+  const DriftScenario sc = makeDriftingSquare();
+  const std::size_t last = sc.odometry.size() - 1;
+  for (const bool on : {false, true}) {
+    PipelineOptions o = finishOptions();
+    o.optimization.background_finish = on;
+    Pipeline p(o);
+    feed(p, sc, 0, sc.odometry.size());
+    p.handleLoopClosure(trueLoopClosure(sc, 0, last));
+    drain(p);
+    const OptimizeResult r = p.optimize(5, "full");
+    ASSERT_TRUE(r.success) << r.message;
+    const double best = toro::g2oChi2(optimum(p.graph()));
+    if (on) {
+      EXPECT_NEAR(r.chi2_after, best, 1e-6 * best) << r.message;
+      EXPECT_NE(r.message.find("finish"), std::string::npos);
+    } else {
+      EXPECT_GT(r.chi2_after, best * (1 + 1e-4)) << r.message;
+    }
+  }
+}
+
+// A loop closure whose robust weight is ~0 in TORO's passes stays out of the finish: the map after
+// the merge is the optimum of the right loop closures alone.
+TEST(BackgroundFinish, UsesTheRobustWeightsOfThePasses) {
+  const DriftScenario sc = makeDriftingSquare(3);
+  Pipeline p(finishOptions());
+  const std::size_t lap = sc.odometry.size() / 3;
+  feed(p, sc, 0, sc.odometry.size());
+  for (std::size_t k = 0; k < 8; ++k)
+    p.handleLoopClosure(trueLoopClosure(sc, 5 * k, 2 * lap + 5 * k));
+  drain(p);
+  LoopClosure wrong = trueLoopClosure(sc, 10, lap + lap / 2);
+  wrong.from_T_to = poseToMsg(toro::Pose3::fromRollPitchYaw(15.0, -8.0, 0, 0, 0, 2.0));
+  wrong.header.stamp = sc.odometry.back().header.stamp + ros::Duration(1.0);
+  p.handleLoopClosure(wrong);
+  drain(p);
+  const std::size_t wrong_index = p.graph().numConstraints() - 1;
+  std::optional<FinishJob> job = p.takeFinishJob();
+  ASSERT_TRUE(job);
+  ASSERT_LT(job->weights[wrong_index], toro::kRejectedWeight);
+  ASSERT_TRUE(p.mergeFinish(runFinishJob(std::move(*job))));
+  EXPECT_EQ(p.status().down_weighted.size(), 1u);
+  // The optimum without the wrong one.
+  toro::PoseGraph clean;
+  for (const toro::Node& n : p.graph().nodes()) clean.addNode(n.id, n.pose);
+  for (std::size_t c = 0; c < wrong_index; ++c) clean.addConstraint(p.graph().constraints()[c]);
+  // Its small weight still pulls a little; at full weight (the finish's own plain chi2) it would
+  // pull the map metres away.
+  const double from_clean = maxPositionDifference(optimum(clean), p.graph(), clean.numNodes());
+  const double full_weight = maxPositionDifference(optimum(clean), optimum(p.graph()), clean.numNodes());
+  EXPECT_GT(full_weight, 1.0);
+  EXPECT_LT(from_clean, 0.05 * full_weight);
+  EXPECT_LT(from_clean, 0.05);
+}
+
+}  // namespace
+}  // namespace toro_ros
