@@ -94,6 +94,17 @@ void writeLoopClosuresJson(std::ostream& out, Pipeline& p, const toro::PoseGraph
   out << "\n  ],\n";
 }
 
+void writeOptimalityJson(std::ostream& out, const std::vector<OfflineRun::Optimality>& samples) {
+  out << "  \"optimality\": [";
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const OfflineRun::Optimality& o = samples[i];
+    out << (i ? ",\n" : "\n") << "    {\"stamp\": " << num(o.stamp_sec) << ", \"constraints\": " << o.constraints
+        << ", \"published_chi2\": " << num(o.published_chi2) << ", \"optimum_chi2\": " << num(o.optimum_chi2)
+        << "}";
+  }
+  out << "\n  ],\n";
+}
+
 void writeCurveJson(std::ostream& out, const std::vector<CurvePoint>& curve) {
   out << "  \"curve\": [";
   for (std::size_t i = 0; i < curve.size(); ++i) {
@@ -148,6 +159,7 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
     out << "\n  },\n";
   }
   writeCurveJson(out, s.run.curve);
+  writeOptimalityJson(out, s.run.optimality);
   out << "  \"loop_closures_down_weighted\": " << s.status.down_weighted.size()
       << ",\n  \"robust_width\": " << num(s.status.robust_width) << ",\n  \"robot_in_map\": [";
   for (std::size_t i = 0; i < s.run.robot_in_map.size(); ++i) {

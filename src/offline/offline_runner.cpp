@@ -12,6 +12,7 @@
 #include <nav_msgs/Odometry.h>
 
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/core/tree_optimizer.h"
 #include "toro_ros/offline/flat_yaml.h"
 #include "toro_ros/offline/progress_bar.h"
@@ -39,6 +40,7 @@ std::string OfflineOptions::validate() const {
   if (topic_namespace.empty() || topic_namespace[0] != '/') return "namespace must start with '/'";
   if (!(std::isfinite(start_sec) && start_sec >= 0)) return "start must be >= 0 s";
   if (!(std::isfinite(duration_sec) && duration_sec >= 0)) return "duration must be >= 0 s (0: to the end)";
+  if (!(std::isfinite(optimality_every_sec) && optimality_every_sec >= 0)) return "optimality period must be >= 0 s";
   return "";
 }
 
@@ -129,6 +131,17 @@ void OfflineRunner::traceRobot(const rosbag::MessageInstance& m, OfflineRun* run
       OfflineRun::RobotInMap{m.getTime().toSec(), map_T_odom * poseFromMsg(odometry->pose.pose).translation()});
 }
 
+void OfflineRunner::sampleOptimality(double stamp_sec, OfflineRun* run) const {
+  const toro::PoseGraph& published = pipeline_->graph();
+  if (published.numConstraints() == 0) return;
+  toro::PoseGraph best = published;
+  toro::FinishOptions o;
+  if (!toro::cholmodAvailable()) o.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
+  toro::LevenbergMarquardt(o).optimize(best);
+  run->optimality.push_back(
+      OfflineRun::Optimality{stamp_sec, toro::g2oChi2(published), toro::g2oChi2(best), published.numConstraints()});
+}
+
 void OfflineRunner::finalPasses(OfflineRun* run) {
   if (options_.final_iterations <= 0 || pipeline_->graph().numConstraints() == 0) return;
   const auto n = static_cast<unsigned>(options_.final_iterations);
@@ -171,6 +184,7 @@ OfflineRun OfflineRunner::run() {
   rosbag::View view(bag, rosbag::TopicQuery(topics), begin, end);
   run.bag_duration_sec = (end - begin).toSec();
   ProgressBar bar(std::cerr, options_.progress);
+  ros::Time next_optimality = begin;
   for (const rosbag::MessageInstance& m : view) {
     try {
       handlers.at(m.getTopic())(m, *pipeline_);
@@ -181,6 +195,10 @@ OfflineRun OfflineRunner::run() {
     ++run.messages_by_topic[m.getTopic()];
     drainSchedule(m.getTime().toSec(), &run);
     traceRobot(m, &run);
+    if (options_.optimality_every_sec > 0 && m.getTime() >= next_optimality) {
+      sampleOptimality((m.getTime() - begin).toSec(), &run);
+      while (next_optimality <= m.getTime()) next_optimality += ros::Duration(options_.optimality_every_sec);
+    }
     bar.update(run.bag_duration_sec > 0 ? (m.getTime() - begin).toSec() / run.bag_duration_sec : 1.0,
                run.messages);
   }

@@ -78,6 +78,8 @@ std::string OptimizationOptions::validate() const {
   if (!(std::isfinite(finish_min_interval_sec) && finish_min_interval_sec >= 0))
     return "optimization finish_min_interval_sec must be >= 0";
   if (finish_max_iterations <= 0) return "optimization finish_max_iterations must be > 0";
+  if (!(std::isfinite(finish_chi2_tolerance) && finish_chi2_tolerance >= 0))
+    return "optimization finish_chi2_tolerance must be >= 0";
   return "";
 }
 
@@ -112,6 +114,9 @@ FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled
         if (cancelled()) throw FinishCancelled{};
       };
     const toro::FinishReport report = toro::LevenbergMarquardt(job.options).optimize(g, callback);
+    for (const toro::Node& n : g.nodes())
+      if (!n.pose.isFinite())
+        throw std::runtime_error("node " + std::to_string(n.id) + " ended with a non-finite pose");
     out.chi2_before = report.initial_chi2;
     out.chi2_after = report.final_chi2;
     out.iterations = report.iterations;
@@ -137,7 +142,8 @@ MapOptimizer::MapOptimizer(const OptimizationOptions& optimization, const toro::
       refuse_(std::move(refuse)),
       warn_(std::move(warn)),
       robust_width_(robust.width),
-      last_chi2_(kNaN) {
+      last_chi2_(kNaN),
+      finished_chi2_(kNaN) {
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
 }
 
@@ -267,6 +273,7 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
   r.time_sec = last_optimization_sec_ = outcome.seconds;
   r.iterations = static_cast<int>(outcome.iterations);
   r.message = std::to_string(outcome.iterations) + " Levenberg-Marquardt iterations";
+  finished_chi2_ = last_chi2_;
   r.success = true;
   // The map is at the optimum of everything it holds: nothing is due.
   finish_due_ = false;
@@ -334,6 +341,9 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
     return std::nullopt;
   if (!last_finish_stamp_.isZero() && (now - last_finish_stamp_).toSec() < options_.finish_min_interval_sec)
     return std::nullopt;
+  if (std::isfinite(finished_chi2_) && std::isfinite(last_chi2_) &&
+      last_chi2_ <= (1.0 + options_.finish_chi2_tolerance) * finished_chi2_)
+    return std::nullopt;  // still due: a later pass may take the map further from the optimum
   FinishJob job = makeFinishJob(static_cast<unsigned>(options_.finish_max_iterations));
   job.sequence = ++finish_sequence_;
   job.stamp = now;
@@ -382,9 +392,19 @@ bool MapOptimizer::mergeFinish(const FinishOutcome& outcome) {
                                                : poses[p] * toro::relativePose(g.node(p).pose, g.node(v).pose);
   }
   optimizer_.setPoses(poses);
-  optimizer_.refreshWeights();
+  // Loop closures the passes weighed down are weighed again on the finished map, so one that the
+  // map now agrees with regains its weight.  Not all of them: weighing one walks its tree path,
+  // and all of them together cost more than the finish.
+  std::vector<std::size_t> down_weighted;
+  const std::vector<double>& w = optimizer_.weights();
+  for (std::size_t c = 0; c < w.size(); ++c)
+    if (w[c] < 1.0) down_weighted.push_back(c);
+  optimizer_.refreshWeights(down_weighted);
+  finished_chi2_ = outcome.chi2_after;
   // Loop closures that arrived meanwhile were corrected on the old poses: their correction is
   // redone on the finished ones now, so the map published after the merge holds them.
+  // What counted as new for the affected passes is settled by the finish, except what came after it.
+  optimizer_.clearAffected();
   bool newer_loop_closures = false;
   for (std::size_t c = constraints; c < g.numConstraints(); ++c) {
     if (!is_loop_closure_[c]) continue;
@@ -421,6 +441,7 @@ void MapOptimizer::replaceGraph(const toro::PoseGraph& graph) {
     optimizer_.addConstraint(k);
   }
   optimizer_.clearAffected();
+  finished_chi2_ = kNaN;
   ++structure_;
   ++revision_;
 }
@@ -438,6 +459,7 @@ void MapOptimizer::clear() {
   last_chi2_ = kNaN;
   finish_due_ = false;
   last_finish_stamp_ = ros::Time();
+  finished_chi2_ = kNaN;
   // A finish still out belongs to the old graph: its merge is dropped by the structure.
   ++structure_;
   ++revision_;
@@ -547,6 +569,7 @@ void MapOptimizer::rejectCandidate(double chi2) {
     optimizer_.addConstraint(now.constraints()[c]);
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(gate_constraint_));
   ++structure_;
+  finished_chi2_ = kNaN;
   last_chi2_ = toro::g2oChi2(optimizer_.graph());
   if (loop_closures_since_full_ > 0) --loop_closures_since_full_;
   --counters_->loop_closures_applied;

@@ -24,6 +24,7 @@ std::string Pipeline::applyLiveOptions(const PipelineOptions& requested) {
   next.optimization.background_finish = requested.optimization.background_finish;
   next.optimization.finish_min_interval_sec = requested.optimization.finish_min_interval_sec;
   next.optimization.finish_max_iterations = requested.optimization.finish_max_iterations;
+  next.optimization.finish_chi2_tolerance = requested.optimization.finish_chi2_tolerance;
   // The gate: the threshold applies to the next test (a loop closure on trial included).
   next.loop_closure_gate_confidence = requested.loop_closure_gate_confidence;
   next.loop_closure_gate_variance_factor = requested.loop_closure_gate_variance_factor;

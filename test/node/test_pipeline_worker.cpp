@@ -227,7 +227,9 @@ TEST(PipelineWorker, BurstBeyondTheQueueIsAccountedFor) {
               sent, static_cast<unsigned long>(worker.dropped()), static_cast<unsigned long>(c.odometry_messages),
               static_cast<unsigned long>(c.loop_closures_received), max_queue);
   EXPECT_EQ(c.odometry_messages + c.loop_closures_received + worker.dropped(), sent);
-  EXPECT_LE(max_queue, kCapacity);
+  // Messages never exceed the bound; commands are never dropped, and the background finish's merge
+  // is one (at most one is out at a time).
+  EXPECT_LE(max_queue, kCapacity + 1);
   EXPECT_GT(worker.dropped(), 0u);  // the burst did outrun the worker
   // What was taken is accounted for by the pipeline too.
   EXPECT_EQ(c.loop_closures_applied + c.loop_closures_refused + s.pending_loop_closures, c.loop_closures_received);

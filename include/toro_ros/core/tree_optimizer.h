@@ -140,6 +140,9 @@ class TreeOptimizer {
   // Recomputes the robust weights of all loop closures from the current poses (a full pass does
   // this itself first); returns how many changed noticeably.
   std::size_t refreshWeights();
+  // The same for the given constraints only (non-robust ones are skipped); the preconditioner
+  // follows (incrementally) when a weight changed by more than a tolerance.
+  std::size_t refreshWeights(const std::vector<std::size_t>& constraints);
   // Changes the robust kernel's width (graduated robustness: a wide kernel first, narrowed over
   // iterations); takes effect at the next weight refresh.
   void setRobustWidth(double width) { options_.robust.width = width; }
@@ -173,9 +176,6 @@ class TreeOptimizer {
   void refreshStructure();
   void addToPreconditioner(std::size_t c);
   std::vector<std::size_t> sortedByTopLevel(std::vector<std::size_t> constraints);
-  // Robust weights of the given constraints from the current poses; the preconditioner follows
-  // (incrementally) when a weight changed by more than a tolerance.  Returns how many changed.
-  std::size_t refreshWeights(const std::vector<std::size_t>& constraints);
   // A robust constraint's weight (options_.robust_by_innovation: from its innovation, see the
   // .cpp), and in `judged_chi2` the chi2 the kernel was applied to.
   double innovationWeight(std::size_t c, double* judged_chi2);

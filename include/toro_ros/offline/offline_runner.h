@@ -31,6 +31,11 @@ struct OfflineOptions {
   // play -s START -u DURATION` would play it (duration 0: to the end).
   double start_sec = 0.0;
   double duration_sec = 0.0;
+  // Every this many seconds of message time (0: never), the optimum of the graph so far is
+  // computed on a copy (the plain sparse finish from the map as published) and its chi2 recorded
+  // beside the published map's (OfflineRun::optimality): how far the live map is from the best
+  // it could be.  A benchmark's measurement: it costs one finish per sample.
+  double optimality_every_sec = 0.0;
   std::string validate() const;
 };
 
@@ -61,6 +66,14 @@ struct OfflineRun {
     toro::Vector3 position = toro::Vector3::Zero();
   };
   std::vector<RobotInMap> robot_in_map;
+  // OfflineOptions::optimality_every_sec: the published map's chi2 and the optimum's at a stamp.
+  struct Optimality {
+    double stamp_sec = 0.0;
+    double published_chi2 = 0.0;
+    double optimum_chi2 = 0.0;
+    std::size_t constraints = 0;
+  };
+  std::vector<Optimality> optimality;
 };
 
 // Feeds one bag message to the pipeline: the table built from forEachPipelineInput.
@@ -84,6 +97,7 @@ class OfflineRunner {
  private:
   void drainSchedule(double stamp_sec, OfflineRun* run);
   void traceRobot(const rosbag::MessageInstance& m, OfflineRun* run) const;
+  void sampleOptimality(double stamp_sec, OfflineRun* run) const;
   void finalPasses(OfflineRun* run);
 
   OfflineOptions options_;

@@ -44,9 +44,14 @@ struct OptimizationOptions {
   // once per `finish_min_interval_sec` of message time and with at most `finish_max_iterations`
   // Levenberg-Marquardt iterations; its result is merged back (MapOptimizer::mergeFinish).  With it
   // on, a full ~optimize ends with the finish too, so the map it leaves is the optimum.
+  // A due finish is only taken when the map's g2o chi2 exceeds that of the last finished map by
+  // more than `finish_chi2_tolerance` (a fraction): adding constraints can only raise the optimum,
+  // so below that the map is within this fraction of the optimum of the graph so far already
+  // (TORO's pass handled the loop closure), and a finish would buy nothing.  0: after every change.
   bool background_finish = true;
   double finish_min_interval_sec = 1.0;
   int finish_max_iterations = 20;
+  double finish_chi2_tolerance = 0.01;
   std::string validate() const;
 };
 
@@ -197,6 +202,9 @@ class MapOptimizer {
   bool finish_outstanding_ = false;
   std::uint64_t finish_sequence_ = 0;
   ros::Time last_finish_stamp_;
+  // The g2o chi2 of the map the last finish left (a lower bound of the optimum of any graph that
+  // grew from it); NaN when there is none for the graph as it is.
+  double finished_chi2_;
   // Changes when constraints are removed or the graph is replaced: a finish of another structure
   // cannot be merged.
   std::uint64_t structure_ = 0;
