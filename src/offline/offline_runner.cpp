@@ -39,6 +39,9 @@ std::string OfflineOptions::validate() const {
   if (topic_namespace.empty() || topic_namespace[0] != '/') return "namespace must start with '/'";
   if (!(std::isfinite(start_sec) && start_sec >= 0)) return "start must be >= 0 s";
   if (!(std::isfinite(duration_sec) && duration_sec >= 0)) return "duration must be >= 0 s (0: to the end)";
+  if (solver_threads) {
+    if (const std::string e = toro::validateSolverThreads(*solver_threads); !e.empty()) return e;
+  }
   return "";
 }
 
@@ -77,6 +80,8 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
     : options_(options), node_options_(loadNodeOptionsFile(options.config_path)) {
   const std::string invalid = options.validate();
   if (!invalid.empty()) throw std::invalid_argument(invalid);
+  // As the node does at start (process-wide; the command line's count before the config's).
+  toro::setSolverThreads(options.solver_threads.value_or(node_options_.finish_threads));
   // As the node: relative load_path / autosave_path are taken from graph_directory.
   const std::string paths = GraphDirectory(node_options_.graph_directory)
                                 .resolveOperatorPaths(&node_options_.load_path,

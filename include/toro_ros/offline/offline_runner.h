@@ -7,6 +7,7 @@
 
 #include <functional>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -31,6 +32,9 @@ struct OfflineOptions {
   // play -s START -u DURATION` would play it (duration 0: to the end).
   double start_sec = 0.0;
   double duration_sec = 0.0;
+  // Threads of the finish (toro::setSolverThreads, process-wide); unset: the config's finish_threads,
+  // as the node would set them.
+  std::optional<int> solver_threads;
   std::string validate() const;
 };
 
