@@ -17,6 +17,9 @@
 #   libraries' own ("library", --solver-threads 0).  ENV is passed through env(1), e.g.
 #   --setting 'omp-limit-1|OMP_THREAD_LIMIT=1|--solver-threads 0'; PROGRAM (default TORO_OPTIMIZE) times
 #   another build of toro_optimize, e.g. an older commit's.
+# Other users: before every run the script waits (up to TORO_WAIT_SEC, default 20 s) until no
+# process outside its own session and its load's is running, so that "quiet" means quiet and
+# "loaded" means this load only; runs that still had company are counted in the output.
 # Environment: TORO_BUILD_DIR (default build), TORO_OPTIMIZE (the program to time; default the build's).  The machine's load (uptime) is printed with each block:
 # on a shared machine "quiet" is only as quiet as the other users leave it.
 set -euo pipefail
@@ -50,6 +53,31 @@ MODE_ARGS=(--mode "${MODE}")
 
 SCRATCH="$(mktemp -d /tmp/toro_finish_load.XXXXXX)"
 LOAD_PID=""
+WAIT_SEC="${TORO_WAIT_SEC:-20}"
+DISTURBED=0
+
+OWN_SID="$(ps -o sid= -p $$ | tr -d ' ')"
+
+# Processes running or runnable now outside this script's session and its load's (kernel threads,
+# session 0, aside).
+foreignRunnable() {
+  ps -eo sid=,stat= | awk -v a="${OWN_SID}" -v b="${LOAD_PID:-none}" '$1 != 0 && $1 != a && $1 != b && $2 ~ /^R/' | wc -l
+}
+
+# Waits until two samples 0.1 s apart see no other user's process running.
+waitForQuiet() {
+  local waited=0 clear=0
+  while ((clear < 2)); do
+    if (($(foreignRunnable) == 0)); then clear=$((clear + 1)); else clear=0; fi
+    ((clear < 2)) && sleep 0.1
+    waited=$((waited + 1))
+    if ((waited >= WAIT_SEC * 10)); then
+      DISTURBED=$((DISTURBED + 1))
+      return
+    fi
+  done
+}
+
 stopLoad() {
   # The load runs in its own session (setsid), so its process group id is its pid: this ends the
   # make loop and the compilers it started, and nothing else.
@@ -94,19 +122,18 @@ startLoad() {
   sleep 5  # past the first compiler start-ups: the steady state of the build
 }
 
-# One line "finish_wall process_wall process_cpu" per run (seconds).
-measure() {
-  local file="$1" env_text="$2" args_text="$3" program="${4:-${OPTIMIZE}}" out t real user sys fin
+# One run; prints "finish_wall process_wall process_cpu" (seconds).
+measureOnce() {
+  local file="$1" env_text="$2" args_text="$3" program="${4:-${OPTIMIZE}}" out real user sys fin
   local -a env_args=() extra=()
   read -r -a env_args <<<"${env_text}"
   read -r -a extra <<<"${args_text}"
-  for ((k = 0; k < RUNS; ++k)); do
-    out="$( { TIMEFORMAT='%R %U %S'; time env ${env_args[@]+"${env_args[@]}"} "${program}" -q "${MODE_ARGS[@]}" \
-      ${extra[@]+"${extra[@]}"} "${file}" >"${SCRATCH}/stdout" </dev/null; } 2>&1)"
-    read -r real user sys <<<"${out}"
-    fin="$(grep -o 'optimisation [0-9.e+-]* s' "${SCRATCH}/stdout" | awk '{print $2}')"
-    echo "${fin} ${real} $(awk -v u="${user}" -v s="${sys}" 'BEGIN{print u + s}')"
-  done
+  waitForQuiet
+  out="$( { TIMEFORMAT='%R %U %S'; time env ${env_args[@]+"${env_args[@]}"} "${program}" -q "${MODE_ARGS[@]}" \
+    ${extra[@]+"${extra[@]}"} "${file}" >"${SCRATCH}/stdout" </dev/null; } 2>&1)"
+  read -r real user sys <<<"${out}"
+  fin="$(grep -o 'optimisation [0-9.e+-]* s' "${SCRATCH}/stdout" | awk '{print $2}')"
+  echo "${fin} ${real} $(awk -v u="${user}" -v s="${sys}" 'BEGIN{print u + s}')"
 }
 
 median() { sort -g | awk '{v[NR] = $1} END {print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2}'; }
@@ -117,13 +144,19 @@ echo "commit $(git -C "${REPO_ROOT}" rev-parse --short HEAD 2>/dev/null || echo 
 echo
 for phase in quiet loaded; do
   [[ "${phase}" == loaded ]] && startLoad
-  echo "${phase}: $(uptime | sed 's/.*load/load/')"
+  DISTURBED=0
+  waitForQuiet
+  echo "${phase}: $(uptime | sed 's/.*load/load/') (before its first run)"
+  # Settings in turn within each round, so that a disturbance falls on all of them alike.
   for file in "${FILES[@]}"; do
-    for s in "${SETTINGS[@]}"; do
-      IFS='|' read -r label env_text args_text program <<<"${s}"
-      measure "${file}" "${env_text}" "${args_text}" "${program}" >"${SCRATCH}/${phase}.$(basename "${file}").${label}"
+    for ((k = 0; k < RUNS; ++k)); do
+      for s in "${SETTINGS[@]}"; do
+        IFS='|' read -r label env_text args_text program <<<"${s}"
+        measureOnce "${file}" "${env_text}" "${args_text}" "${program}" >>"${SCRATCH}/${phase}.$(basename "${file}").${label}"
+      done
     done
   done
+  echo "  ${phase}: ${DISTURBED} run(s) started beside other users' running processes (waited ${WAIT_SEC} s)"
   stopLoad
 done
 echo "after: $(uptime | sed 's/.*load/load/')"
