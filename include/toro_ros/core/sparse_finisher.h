@@ -33,10 +33,9 @@ bool cholmodAvailable();
 // Threads of the finish.  The sparse Cholesky runs in runtimes with threads of their own: OpenBLAS
 // (when it is the system BLAS; a pool of one thread per CPU, started when it is loaded) and the
 // OpenMP loops CHOLMOD 3 runs inside each supernodal factorisation (`num_threads(4)`, fixed at its
-// compile time, so omp_set_num_threads alone does not reach them).  Beside a two-job compiler
-// build, whose processes come and go every few seconds, four OpenMP threads on a 2-core machine
-// made the finish of smallGrid3D.g2o several times slower than one thread; two steady busy loops
-// did not (bench/finish_load_results.md).  setSolverThreads(n), n >= 1:
+// compile time, so omp_set_num_threads alone does not reach them).  On a 2-core machine that team
+// of 4 made the finish of smallGrid3D.g2o 2.5x slower than one thread, and sphere2500.g2o 2.2x
+// slower beside a two-job compiler build (bench/finish_load_results.md).  setSolverThreads(n), n >= 1:
 //  * OpenBLAS: n threads (openblas_set_num_threads; process-wide at once);
 //  * OpenMP: n threads and dynamic teams (omp_set_num_threads, omp_set_dynamic).  libgomp then bounds
 //    every team, CHOLMOD's num_threads(4) ones included, by n (and by the CPUs left after the
