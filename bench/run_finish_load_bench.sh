@@ -156,7 +156,7 @@ for phase in quiet loaded; do
       done
     done
   done
-  echo "  ${phase}: ${DISTURBED} run(s) started beside other users' running processes (waited ${WAIT_SEC} s)"
+  echo "  ${phase}: ${DISTURBED} of $((RUNS * ${#SETTINGS[@]} * ${#FILES[@]} + 1)) waits (one per run, one before the first) ended with other users' processes still running (after ${WAIT_SEC} s)"
   stopLoad
 done
 echo "after: $(uptime | sed 's/.*load/load/')"
