@@ -5,7 +5,7 @@
 // alone.  Writes Markdown to stdout.
 //
 //   bench_finish [--datasets DIR] [--runs 5] [--only NAME] [--solver-threads N] [--planar-comparison 1]
-// --solver-threads: as toro_optimize (default 1: limitSolverThreads(1); 0: runtime defaults).
+// --solver-threads: as toro_optimize (default 1: setSolverThreads(1); 0: runtime defaults).
 // --planar-comparison 1: instead of the cases above, every 2D file with a best known chi2 through
 // TORO-then-finish twice, with TORO in SE(2) (the default for 2D files) and with the 3D code
 // (issue 11: same chi2 after the finish).
@@ -98,7 +98,7 @@ int main(int argc, char** argv) {
   std::string dir = TORO_DATASETS_DIR;
   int runs = 5;
   std::string only;
-  int solver_threads = 1;
+  int solver_threads = kDefaultSolverThreads;
   bool planar_comparison = false;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
@@ -159,10 +159,9 @@ int main(int argc, char** argv) {
   }
   std::string threads = "runtime defaults";
   if (solver_threads > 0) {
-    const SolverThreadSettings set = limitSolverThreads(solver_threads);
-    threads = "limitSolverThreads(" + std::to_string(solver_threads) + "): OpenBLAS " +
-              (set.openblas_set ? "set" : "not loaded") + ", OpenMP dynamic " +
-              (set.openmp_dynamic_set ? "set" : "not loaded");
+    const SolverThreadSettings set = setSolverThreads(solver_threads);
+    threads = "setSolverThreads(" + std::to_string(solver_threads) + "): OpenBLAS " +
+              (set.openblas_set ? "set" : "not loaded") + ", OpenMP " + (set.openmp_set ? "set" : "not loaded");
   }
   std::printf("runs per case: %d (median); solver threads: %s; OPENBLAS_NUM_THREADS=%s\n\n", runs,
               threads.c_str(),

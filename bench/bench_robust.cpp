@@ -227,7 +227,7 @@ int main(int argc, char** argv) {
   }
   for (const std::string& k : s.kinds)
     if (!outlierKindFromString(k)) return usage();
-  limitSolverThreads(1);  // as toro_optimize does (bench/finish_results.md)
+  setSolverThreads(kDefaultSolverThreads);  // as toro_optimize does (bench/finish_load_results.md)
   std::printf("kernel %s, width %g, seed %u, runs %d\n\n", robustKernelName(s.robust.kernel), s.robust.width,
               s.seed, s.runs);
   std::printf(

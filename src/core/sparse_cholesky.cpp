@@ -2,6 +2,9 @@
 
 #include <dlfcn.h>
 
+#include <atomic>
+#include <string>
+
 #include <Eigen/SparseCholesky>
 #include <stdexcept>
 
@@ -19,21 +22,69 @@ bool cholmodAvailable() {
 #endif
 }
 
-SolverThreadSettings limitSolverThreads(int blas_threads) {
-  // dlsym instead of linking: the BLAS behind CHOLMOD is chosen by the system (Debian's
-  // alternatives), and OpenMP is CHOLMOD's own dependency.
-  using IntSetter = void (*)(int);
+namespace {
+
+using IntSetter = void (*)(int);
+
+// The runtimes' setters, looked up once.  dlsym instead of linking: the BLAS behind CHOLMOD is
+// chosen by the system (Debian's alternatives), and OpenMP is CHOLMOD's own dependency.
+struct ThreadSetters {
+  IntSetter openblas_threads = nullptr;
+  IntSetter omp_threads = nullptr;
+  IntSetter omp_dynamic = nullptr;
+};
+
+const ThreadSetters& threadSetters() {
+  static const ThreadSetters setters = [] {
+    ThreadSetters s;
+    s.openblas_threads = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
+    s.omp_threads = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "omp_set_num_threads"));
+    s.omp_dynamic = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "omp_set_dynamic"));
+    return s;
+  }();
+  return setters;
+}
+
+// Process-wide, as the libraries' own counts are; read by every finish, in whatever thread it runs.
+std::atomic<int> solver_threads{0};
+
+// OpenMP's thread count and dynamic adjustment belong to the calling thread (its data environment),
+// so this runs in the thread that is about to factorise.  Dynamic teams: without them libgomp gives
+// CHOLMOD's num_threads(4) clauses four threads whatever the thread count says.
+bool applyOpenMp(int threads) {
+  const ThreadSetters& s = threadSetters();
+  if (threads <= 0 || !s.omp_threads || !s.omp_dynamic) return false;
+  s.omp_threads(threads);
+  s.omp_dynamic(1);
+  return true;
+}
+
+}  // namespace
+
+std::string validateSolverThreads(int threads) {
+  if (threads < 0 || threads > kMaxSolverThreads)
+    return "solver threads must be in [0, " + std::to_string(kMaxSolverThreads) + "] (0: the libraries' own), got " +
+           std::to_string(threads);
+  return "";
+}
+
+SolverThreadSettings setSolverThreads(int threads) {
+  const std::string invalid = validateSolverThreads(threads);
+  if (!invalid.empty()) throw std::invalid_argument(invalid);
   SolverThreadSettings out;
-  if (auto set_threads = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) {
-    set_threads(blas_threads < 1 ? 1 : blas_threads);
-    out.openblas_set = true;
+  if (threads > 0) {
+    solver_threads.store(threads);
+    if (const IntSetter set = threadSetters().openblas_threads) {
+      set(threads);
+      out.openblas_set = true;
+    }
+    out.openmp_set = applyOpenMp(threads);
   }
-  if (auto set_dynamic = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "omp_set_dynamic"))) {
-    set_dynamic(1);
-    out.openmp_dynamic_set = true;
-  }
+  out.threads = solver_threads.load();
   return out;
 }
+
+int solverThreads() { return solver_threads.load(); }
 
 const char* linearSolverName(LinearSolverType type) {
   switch (type) {
@@ -71,7 +122,17 @@ class QuietCholmod : public EigenStyleCholesky<Solver> {
  public:
   // CHOLMOD prints warnings (e.g. "not positive definite") by default; the library must not
   // print, and a failed factorisation is reported through factorize()'s result instead.
-  QuietCholmod() { this->solver_.cholmod().print = 0; }
+  //
+  // The thread count of setSolverThreads reaches OpenMP here, in the thread that factorises.
+  QuietCholmod() {
+    this->solver_.cholmod().print = 0;
+    const int threads = solverThreads();
+    applyOpenMp(threads);
+#if CHOLMOD_MAIN_VERSION >= 5
+    // CHOLMOD 5 sizes its OpenMP loops itself (Common.nthreads_max; 0: its own default).
+    if (threads > 0) this->solver_.cholmod().nthreads_max = threads;
+#endif
+  }
 };
 #endif
 

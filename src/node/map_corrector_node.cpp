@@ -57,6 +57,14 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
                         &resolved.load_path, &resolved.pipeline.persistence.autosave_path));
     options_ = std::make_shared<const NodeOptions>(resolved);
   }
+  {
+    // Process-wide (a nodelet: the whole manager); every finish applies it in its own thread.
+    const toro::SolverThreadSettings threads = toro::setSolverThreads(options_->finish_threads);
+    ROS_INFO_STREAM("map corrector: finish threads "
+                    << (threads.threads > 0 ? std::to_string(threads.threads) : std::string("of the libraries"))
+                    << " (OpenBLAS " << (threads.openblas_set ? "set" : "not loaded or left") << ", OpenMP "
+                    << (threads.openmp_set ? "set" : "not loaded or left") << ")");
+  }
   auto pipeline = std::make_unique<Pipeline>(
       options_->pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); },
       [](const std::string& i) { ROS_INFO_STREAM("map corrector: " << i); });

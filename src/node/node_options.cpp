@@ -161,6 +161,7 @@ std::string NodeOptions::validate() const {
   if (queue_size <= 0) return "queue_size must be > 0";
   if (!(service_timeout_sec > 0 && std::isfinite(service_timeout_sec)))
     return "service_timeout_sec must be > 0";
+  if (const std::string e = toro::validateSolverThreads(finish_threads); !e.empty()) return "finish_threads: " + e;
   for (const std::string& e : {pipeline.validate(), markers.validate(), diagnostics.validate()})
     if (!e.empty()) return e;
   return "";
@@ -179,6 +180,7 @@ NodeOptions loadNodeOptions(const XmlRpc::XmlRpcValue& params, OptionsReport* re
   r.read("service_timeout_sec", o.service_timeout_sec);
   r.read("load_path", o.load_path);
   r.read("graph_directory", o.graph_directory);
+  r.read("finish_threads", o.finish_threads);
   readPipeline(r, o.pipeline);
   r.read("marker_node_scale_m", o.markers.node_scale_m);
   r.read("marker_edge_width_m", o.markers.edge_width_m);

@@ -41,6 +41,9 @@ std::string OfflineOptions::validate() const {
   if (!(std::isfinite(start_sec) && start_sec >= 0)) return "start must be >= 0 s";
   if (!(std::isfinite(duration_sec) && duration_sec >= 0)) return "duration must be >= 0 s (0: to the end)";
   if (!(std::isfinite(optimality_every_sec) && optimality_every_sec >= 0)) return "optimality period must be >= 0 s";
+  if (solver_threads) {
+    if (const std::string e = toro::validateSolverThreads(*solver_threads); !e.empty()) return e;
+  }
   return "";
 }
 
@@ -79,6 +82,8 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
     : options_(options), node_options_(loadNodeOptionsFile(options.config_path)) {
   const std::string invalid = options.validate();
   if (!invalid.empty()) throw std::invalid_argument(invalid);
+  // As the node does at start (process-wide; the command line's count before the config's).
+  toro::setSolverThreads(options.solver_threads.value_or(node_options_.finish_threads));
   // As the node: relative load_path / autosave_path are taken from graph_directory.
   const std::string paths = GraphDirectory(node_options_.graph_directory)
                                 .resolveOperatorPaths(&node_options_.load_path,

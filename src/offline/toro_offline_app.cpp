@@ -29,6 +29,9 @@ const std::vector<ArgSpec> kSpecs = {
      "every this many seconds of message time, compute the optimum of the graph so far on a copy and "
      "record its chi2 beside the published map's in summary.json (a benchmark's measure; 0: never). "
      "Default 0"},
+    {"solver-threads",
+     "threads of the finish's linear algebra (OpenBLAS, OpenMP), process-wide; 0 leaves the libraries' "
+     "own. Default: the config's finish_threads (1)"},
     {"no-curve", "do not record chi2 after each final pass (saves one extra run of the final passes)", false},
     {"quiet", "no progress bar (there is none either when stderr is not a terminal)", false},
 };
@@ -44,6 +47,7 @@ OfflineOptions optionsFromArgs(const ParsedArgs& a) {
   o.start_sec = a.number("start", o.start_sec);
   o.duration_sec = a.number("duration", o.duration_sec);
   o.optimality_every_sec = a.number("optimality-every", o.optimality_every_sec);
+  if (a.has("solver-threads")) o.solver_threads = a.integer("solver-threads", 0);
   // A progress bar only for a terminal: in a log file its redraws would be one long line.
   o.progress = !a.has("quiet") && isatty(STDERR_FILENO);
   const std::string beside = bagStem(o.bag_path) + ".truth.g2o";

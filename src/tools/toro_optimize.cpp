@@ -52,9 +52,10 @@ constexpr const char* kUsage =
     "                            (default 1e-7)\n"
     "  --linear-solver cholmod-supernodal|cholmod-simplicial|eigen-ldlt\n"
     "                            sparse Cholesky of the finish (default cholmod-supernodal)\n"
-    "  --solver-threads N        OpenBLAS threads of the finish, OpenMP adapting to the load\n"
-    "                            (default 1, measured fastest on a shared 2-core machine; 0 leaves\n"
-    "                            the runtimes' own settings)\n"
+    "  --solver-threads N        threads of the finish's linear algebra: OpenBLAS and OpenMP (CHOLMOD's\n"
+    "                            loops) get at most N (default 1: measured fastest beside other work\n"
+    "                            on a 2-core machine, bench/finish_load_results.md; 0 leaves the\n"
+    "                            libraries' own settings and the OMP_* / OPENBLAS_* variables)\n"
     "  -o OUTPUT                 write the result; format by extension (.graph/.toro: TORO, else g2o)\n"
     "  --initial-guess chain|odometry|file\n"
     "                            chain the measurements along the tree (default without --robust),\n"
@@ -106,7 +107,7 @@ struct CliOptions {
   std::size_t finish_iterations = toro::FinishOptions{}.max_iterations;
   double finish_tolerance = toro::FinishOptions{}.relative_decrease_tolerance;
   toro::LinearSolverType linear_solver = toro::FinishOptions{}.linear_solver;
-  std::size_t solver_threads = 1;
+  std::size_t solver_threads = toro::kDefaultSolverThreads;
   bool chain_guess = true;
   bool odometry_guess = false;   // --initial-guess odometry (the default with --robust)
   bool guess_given = false;
@@ -187,6 +188,8 @@ CliOptions parseArguments(const std::vector<std::string>& args) {
       o.linear_solver = parseLinearSolver(value());
     } else if (a == "--solver-threads") {
       o.solver_threads = parseCount(a, value());
+      if (o.solver_threads > toro::kMaxSolverThreads)
+        throw UsageError(a + " needs at most " + std::to_string(toro::kMaxSolverThreads) + ", got " + std::to_string(o.solver_threads));
     } else if (a == "--gamma") {
       o.gamma = parsePositive(a, value());
     } else if (a == "--initial-guess") {
@@ -353,8 +356,11 @@ void printSummary(const CliOptions& o, const toro::PoseGraph& graph, const Measu
   if (o.mode == toro::OptimizeMode::kToroThenFinish)
     std::printf(" (switch: %s)", result.switch_reason.c_str());
   if (o.mode != toro::OptimizeMode::kToro) {
-    std::printf(", %zu finish iterations (stop: %s, linear solver %s)", result.finish.iterations,
-                toro::finishStopName(result.finish.stop), toro::linearSolverName(o.linear_solver));
+    const int threads = toro::solverThreads();
+    const std::string threads_text = threads > 0 ? std::to_string(threads) : "library defaults";
+    std::printf(", %zu finish iterations (stop: %s, linear solver %s, solver threads %s)", result.finish.iterations,
+                toro::finishStopName(result.finish.stop), toro::linearSolverName(o.linear_solver),
+                threads_text.c_str());
     if (result.finish.repaired_information > 0) {
       std::printf(", warning: %zu information matrices repaired", result.finish.repaired_information);
     }
@@ -413,7 +419,7 @@ int optimise(CliOptions o) {
   o.chain_guess = decideChain(o, report);
 
   const toro::OptimizeOptions options = optimizeOptions(o);
-  if (o.solver_threads > 0) toro::limitSolverThreads(static_cast<int>(o.solver_threads));
+  toro::setSolverThreads(static_cast<int>(o.solver_threads));
   toro::PoseGraph estimate = graph;
   RunLog log;
   Measures before;

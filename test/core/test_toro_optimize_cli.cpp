@@ -254,6 +254,29 @@ TEST_F(ToroOptimizeCli, FinishOnlyFromTheFilePosesAndBadFinishOptions) {
   EXPECT_NE(r.err.find("finish: max_iterations must be at least 1"), std::string::npos) << r.err;
 }
 
+// --solver-threads reaches the finish (its summary names the count in force) and is validated.
+TEST_F(ToroOptimizeCli, SolverThreadsDefaultIsOneAndTheOptionIsParsed) {
+  Result r = run("-q --mode finish --initial-guess file " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("solver threads 1)"), std::string::npos) << r.out;
+  r = run("-q --solver-threads 2 --mode finish --initial-guess file " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("solver threads 2)"), std::string::npos) << r.out;
+  // The same minimum whatever the threads.
+  EXPECT_NEAR(numberAfter(r.out, "after", "g2o chi2"), 458.154, 1e-4 * 458.154) << r.out;
+  r = run("-q --solver-threads 0 --mode finish --initial-guess file " + kSmallGrid);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("solver threads library defaults)"), std::string::npos) << r.out;
+  r = run("--solver-threads -1 " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(r.err, "toro_optimize: --solver-threads needs a non-negative integer, got '-1' (see --help)\n");
+  r = run("--solver-threads 5000 " + kSmallGrid);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--solver-threads needs at most 1024, got 5000"), std::string::npos) << r.err;
+  r = run("--help");
+  EXPECT_NE(r.out.find("--solver-threads N"), std::string::npos);
+}
+
 TEST_F(ToroOptimizeCli, MalformedFileGivesFileLineMessageAndNonZeroExit) {
   const fs::path bad = dir_ / "bad.g2o";
   std::ofstream(bad) << "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n"

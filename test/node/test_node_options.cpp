@@ -101,6 +101,27 @@ TEST(NodeOptions, WrongTypesAndInvalidValuesAreErrorsNamingTheKey) {
   EXPECT_NE(r2.errors[0].find("angle_rad"), std::string::npos);
 }
 
+TEST(NodeOptions, FinishThreadsDefaultIsOneAndNegativeCountsAreErrors) {
+  OptionsReport defaults;
+  EXPECT_EQ(loadNodeOptions(XmlRpc::XmlRpcValue(), &defaults).finish_threads, 1);
+  XmlRpc::XmlRpcValue params;
+  params["finish_threads"] = 0;  // the libraries' own
+  OptionsReport zero;
+  EXPECT_EQ(loadNodeOptions(params, &zero).finish_threads, 0);
+  EXPECT_TRUE(zero.errors.empty());
+  params["finish_threads"] = -1;
+  OptionsReport negative;
+  loadNodeOptions(params, &negative);
+  ASSERT_EQ(negative.errors.size(), 1u);
+  EXPECT_NE(negative.errors[0].find("finish_threads: solver threads must be in [0, 1024]"), std::string::npos)
+      << negative.errors[0];
+  params["finish_threads"] = 1.5;
+  OptionsReport fraction;
+  loadNodeOptions(params, &fraction);
+  ASSERT_EQ(fraction.errors.size(), 1u);
+  EXPECT_NE(fraction.errors[0].find("finish_threads: expected an integer"), std::string::npos) << fraction.errors[0];
+}
+
 // The message and service definitions document the node's interface in their comments: every
 // "~name" they mention must be a parameter, topic or service the node has (they once named
 // ~loop_closure/stamp_tolerance_sec and ~optimization/full_iterations, which never existed).

@@ -2,6 +2,7 @@
 // Pipeline rebuilds the bag's graph node for node, beats raw odometry by a wide margin against
 // the truth, and the command-line tool writes consistent outputs; bad bags give errors naming
 // the bag and topic.
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
@@ -10,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <tuple>
 
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
@@ -196,6 +198,50 @@ TEST(OfflineRunner, EveryShippedParameterFileLoads) {
     }
   }
   EXPECT_GE(files, 3u);  // map_corrector, replay_sample, offline_period_0.1s
+}
+
+// The finish's threads: the config's finish_threads as the node sets them, --solver-threads first.
+TEST(OfflineRunner, SetsTheFinishThreadsOfTheConfigOrTheCommandLine) {
+  const fs::path config =
+      fs::temp_directory_path() / ("toro_offline_threads_" + std::to_string(::getpid()) + ".yaml");
+  std::ofstream(config) << "finish_threads: 3\n";
+  OfflineOptions o;
+  o.bag_path = kSample + ".bag";
+  o.config_path = config.string();
+  OfflineRunner from_config(o);
+  EXPECT_EQ(toro::solverThreads(), 3);
+  o.solver_threads = 2;
+  OfflineRunner from_option(o);
+  EXPECT_EQ(toro::solverThreads(), 2);
+  o.solver_threads = -1;
+  EXPECT_THROW(OfflineRunner bad(o), std::invalid_argument);
+  std::ofstream(config) << "finish_threads: -2\n";
+  o.solver_threads.reset();
+  EXPECT_THROW(OfflineRunner bad(o), std::invalid_argument);
+  fs::remove(config);
+  toro::setSolverThreads(toro::kDefaultSolverThreads);
+}
+
+TEST(ToroOfflineTool, SolverThreadsOptionIsParsedAndValidated) {
+  const fs::path log = fs::temp_directory_path() / ("toro_offline_threads_" + std::to_string(::getpid()) + ".log");
+  const auto run = [&](const std::string& args) {
+    const std::string cmd = std::string(TORO_OFFLINE_BIN) + " " + args + " > " + log.string() + " 2>&1";
+    const int status = std::system(cmd.c_str());
+    std::ifstream in(log);
+    std::stringstream text;
+    text << in.rdbuf();
+    return std::make_pair(WIFEXITED(status) ? WEXITSTATUS(status) : -1, text.str());
+  };
+  auto [code, text] = run(kSample + ".bag --solver-threads many");
+  EXPECT_EQ(code, 2);
+  EXPECT_NE(text.find("--solver-threads: expected an integer, got 'many'"), std::string::npos) << text;
+  std::tie(code, text) = run(kSample + ".bag --solver-threads -1");
+  EXPECT_EQ(code, 2);
+  EXPECT_NE(text.find("solver threads must be in [0, 1024]"), std::string::npos) << text;
+  std::tie(code, text) = run("--help");
+  EXPECT_EQ(code, 0);
+  EXPECT_NE(text.find("--solver-threads"), std::string::npos) << text;
+  fs::remove(log);
 }
 
 TEST(ToroOfflineTool, WritesGraphBagAndSummaryThatAgree) {

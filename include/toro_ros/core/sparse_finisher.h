@@ -30,19 +30,37 @@ enum class LinearSolverType {
 // True if this build links CHOLMOD (kCholmodSupernodal is usable).
 bool cholmodAvailable();
 
-// The sparse Cholesky runs in runtimes with their own threads: OpenBLAS (when it is the system
-// BLAS) and CHOLMOD's OpenMP loops (4 threads, fixed at its compile time).  On this project's
-// 2-core machines, shared with other work, those threads spin and wait more than they compute:
-// measured on sphere2500.g2o (bench/finish_results.md), limiting them makes TORO-then-finish about
-// 1.7x faster in wall time and halves its CPU time.  This sets OpenBLAS to `blas_threads` threads
-// and lets OpenMP adapt its team sizes to the load (omp_set_dynamic).  Process-wide, so only
-// programs that own their process call it (toro_optimize, the benchmark); a library user decides
-// for its own process.  Looked up at run time: a runtime that is not loaded is left alone.
+// Threads of the finish.  The sparse Cholesky runs in runtimes with threads of their own: OpenBLAS
+// (when it is the system BLAS; a pool of one thread per CPU, started when it is loaded) and the
+// OpenMP loops CHOLMOD 3 runs inside each supernodal factorisation (`num_threads(4)`, fixed at its
+// compile time, so omp_set_num_threads alone does not reach them).  On a 2-core machine that team
+// of 4 made the finish of smallGrid3D.g2o 2.5x slower than one thread, and sphere2500.g2o 2.2x
+// slower beside a two-job compiler build (bench/finish_load_results.md).  setSolverThreads(n), n >= 1:
+//  * OpenBLAS: n threads (openblas_set_num_threads; process-wide at once);
+//  * OpenMP: n threads and dynamic teams (omp_set_num_threads, omp_set_dynamic).  libgomp then bounds
+//    every team, CHOLMOD's num_threads(4) ones included, by n (and by the CPUs left after the
+//    15-minute load average).  These are per-thread settings in OpenMP, so the count is kept here
+//    and every finish applies it to the thread it runs in (the node's worker, a background finish)
+//    before it factorises;
+//  * CHOLMOD >= 5 (SuiteSparse 7; not Debian 12's 3.0): also its Common.nthreads_max.
+// n = 0 changes nothing: the libraries keep their own settings (or those of an earlier call, which
+// stays in force).
+// Process-wide: every finish in the process uses the last count set, so programs that own their
+// process call it (toro_optimize, toro_offline, the node at start; a nodelet sets it for its whole
+// manager process).  Looked up at run time (dlsym): a runtime that is not loaded is left alone.
+constexpr int kDefaultSolverThreads = 1;  // measured: bench/finish_load_results.md
+constexpr int kMaxSolverThreads = 1024;   // more than any machine this runs on: catches typos
 struct SolverThreadSettings {
-  bool openblas_set = false;        // openblas_set_num_threads was found and called
-  bool openmp_dynamic_set = false;  // omp_set_dynamic was found and called
+  int threads = 0;            // the count in force after the call (0: the libraries' own)
+  bool openblas_set = false;  // openblas_set_num_threads was found and called
+  bool openmp_set = false;    // omp_set_num_threads and omp_set_dynamic were found and called
 };
-SolverThreadSettings limitSolverThreads(int blas_threads);
+// Empty when `threads` is a valid count (0 to kMaxSolverThreads), otherwise what is wrong.
+std::string validateSolverThreads(int threads);
+// Throws std::invalid_argument for an invalid count (validateSolverThreads).
+SolverThreadSettings setSolverThreads(int threads);
+// The count in force: the last non-zero one given to setSolverThreads (0 if none was).
+int solverThreads();
 const char* linearSolverName(LinearSolverType type);
 
 // How often the finish runs again when a set-aside loop closure regained weight (robust only).

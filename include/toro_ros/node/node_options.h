@@ -8,6 +8,7 @@
 
 #include <xmlrpcpp/XmlRpcValue.h>
 
+#include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/node/input_health.h"
 #include "toro_ros/pipeline/pipeline.h"
 #include "toro_ros/pipeline/visualization.h"
@@ -31,6 +32,11 @@ struct NodeOptions {
   // is touched for a service) and what relative load_path / autosave_path are taken from.  "":
   // defaultGraphDirectory() ($ROS_HOME/toro_ros or ~/.ros/toro_ros); see pipeline/graph_directory.h.
   std::string graph_directory;
+  // Threads of the finish's linear algebra (toro::setSolverThreads: OpenBLAS, OpenMP / CHOLMOD), set
+  // once at start for the whole process (a nodelet: its manager and every nodelet in it); 0 leaves
+  // the libraries' own.  1 by default: more threads made the finish slower beside other work on the
+  // 2-core machines measured (bench/finish_load_results.md).
+  int finish_threads = toro::kDefaultSolverThreads;
   PipelineOptions pipeline;
   MarkerOptions markers;
   InputHealthOptions diagnostics;  // when the diagnostics WARN or ERROR about the input

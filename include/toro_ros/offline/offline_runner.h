@@ -7,6 +7,7 @@
 
 #include <functional>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -36,6 +37,9 @@ struct OfflineOptions {
   // beside the published map's (OfflineRun::optimality): how far the live map is from the best
   // it could be.  A benchmark's measurement: it costs one finish per sample.
   double optimality_every_sec = 0.0;
+  // Threads of the finish (toro::setSolverThreads, process-wide); unset: the config's finish_threads,
+  // as the node would set them.
+  std::optional<int> solver_threads;
   std::string validate() const;
 };
 
