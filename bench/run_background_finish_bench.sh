@@ -7,13 +7,7 @@
 #
 #   bench/run_background_finish_bench.sh [BUILD_DIR]   (default: build; needs graph_to_bag,
 #        toro_offline, toro_optimize there and ../shared/datasets; DATASETS="a b" to choose)
-set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-build=$(realpath "${1:-$root/build}")
-bin=$build/devel/lib/toro_ros
-datasets=$root/../shared/datasets
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
+. "$(dirname "$0")/bench_env.sh"
 out=$root/bench/background_finish_results.md
 list=${DATASETS:-"sphere2500 parking-garage 2d/intel 2d/manhattan 2d/MIT 2d/CSAIL 2d/ais2klinik 2d/manhattanOlson3500 2d/intel_g2o-vertigo 2d/kitti_02"}
 

@@ -8,13 +8,7 @@
 #
 #   bench/run_offline_bench.sh [BUILD_DIR]      (default: build; needs graph_to_bag, toro_offline,
 #                                                toro_optimize built there, ../shared/datasets)
-set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-build=$(realpath "${1:-$root/build}")
-bin=$build/devel/lib/toro_ros
-datasets=$root/../shared/datasets
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
+. "$(dirname "$0")/bench_env.sh"
 out=$root/bench/offline_results.md
 iterations=100
 
