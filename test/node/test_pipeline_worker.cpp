@@ -308,6 +308,6 @@ TEST(PipelineWorker, BackgroundFinishIsMergedAndPublished) {
   toro::FinishOptions fo;
   if (!toro::cholmodAvailable()) fo.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
   toro::LevenbergMarquardt(fo).optimize(best);
-  EXPECT_NEAR(snapshot->chi2, toro::g2oChi2(best), 1e-6 * toro::g2oChi2(best));
+  EXPECT_NEAR(snapshot->chi2, toro::g2oChi2(best), 1e-4 * toro::g2oChi2(best));
   EXPECT_TRUE(errors.texts.empty());
 }

@@ -68,14 +68,15 @@ TEST(BackgroundFinish, MergedFinishIsTheOptimumAndTorosPassWasNot) {
   const FinishOutcome outcome = runFinishJob(std::move(*job));
   ASSERT_TRUE(outcome.success) << outcome.error;
   EXPECT_TRUE(p.mergeFinish(outcome));
-  EXPECT_NEAR(toro::g2oChi2(p.graph()), best_chi2, 1e-6 * best_chi2);
-  EXPECT_LT(maxPositionDifference(p.graph(), best, best.numNodes()), 1e-6);
+  // A background finish stops at a relative decrease of 1e-5 per iteration (kBackgroundRelativeDecrease).
+  EXPECT_NEAR(toro::g2oChi2(p.graph()), best_chi2, 1e-4 * best_chi2);
+  EXPECT_LT(maxPositionDifference(p.graph(), best, best.numNodes()), 1e-3);
   const PipelineStatus s = p.status();
   EXPECT_EQ(s.counters.finishes_started, 1u);
   EXPECT_EQ(s.counters.finishes_merged, 1u);
   ASSERT_TRUE(s.last_finish);
   EXPECT_TRUE(s.last_finish->merged);
-  EXPECT_NEAR(s.last_finish->chi2_after, best_chi2, 1e-6 * best_chi2);
+  EXPECT_NEAR(s.last_finish->chi2_after, best_chi2, 1e-4 * best_chi2);
   EXPECT_NEAR(s.last_chi2, toro::g2oChi2(p.graph()), 1e-9 * best_chi2);
   EXPECT_FALSE(p.takeFinishJob());  // nothing new since
 }
@@ -114,7 +115,7 @@ TEST(BackgroundFinish, KeyframesAndLoopClosuresThatArriveDuringAFinishFollowIt) 
   ASSERT_TRUE(next);
   ASSERT_TRUE(p.mergeFinish(runFinishJob(std::move(*next))));
   const toro::PoseGraph best = optimum(p.graph());
-  EXPECT_NEAR(toro::g2oChi2(p.graph()), toro::g2oChi2(best), 1e-6 * toro::g2oChi2(best));
+  EXPECT_NEAR(toro::g2oChi2(p.graph()), toro::g2oChi2(best), 1e-4 * toro::g2oChi2(best));
 }
 
 TEST(BackgroundFinish, NewerNodesKeepTheirPoseRelativeToTheirParent) {
