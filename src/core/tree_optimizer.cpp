@@ -73,6 +73,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   constraint_rotation_info_.clear();
   constraint_translation_info_.clear();
   robust_weight_.clear();
+  weight_cap_.clear();
   arrival_chi2_.clear();
   preconditioned_weight_.clear();
   robust_.clear();
@@ -108,6 +109,7 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
   incident_[from_index_.back()].push_back(c);
   incident_[to_index_.back()].push_back(c);
   robust_weight_.push_back(1.0);
+  weight_cap_.push_back(1.0);
   arrival_chi2_.push_back(-1.0);
   preconditioned_weight_.push_back(1.0);
   robust_.push_back(options_.robust.enabled() && isLoopClosure(k) ? 1 : 0);
@@ -134,7 +136,18 @@ void TreeOptimizer::adjustPreconditioner(std::size_t c, double rotation_delta, d
   }
 }
 
+void TreeOptimizer::setWeightCap(std::size_t c, double cap) {
+  if (c >= weight_cap_.size()) throw std::out_of_range("TreeOptimizer::setWeightCap: no constraint " + std::to_string(c));
+  weight_cap_[c] = std::clamp(cap, 0.0, 1.0);
+  refreshWeights(std::vector<std::size_t>{c});
+}
+
 double TreeOptimizer::innovationWeight(std::size_t c, double* judged_chi2) {
+  if (!(weight_cap_[c] > 0.0)) return 0.0;  // held by the caller: no need to walk its path
+  return std::min(weight_cap_[c], kernelWeight(c, judged_chi2));
+}
+
+double TreeOptimizer::kernelWeight(std::size_t c, double* judged_chi2) {
   const double plain = constraintChi2(graph_, c);
   if (!options_.robust_by_innovation) {
     *judged_chi2 = plain;

@@ -127,6 +127,8 @@ void readPipeline(ParamReader& r, PipelineOptions& p) {
   r.read("optimization_finish_min_interval_sec", p.optimization.finish_min_interval_sec);
   r.read("optimization_finish_max_iterations", p.optimization.finish_max_iterations);
   r.read("optimization_finish_chi2_tolerance", p.optimization.finish_chi2_tolerance);
+  r.read("robust_hold_until_supported", p.optimization.hold_until_supported);
+  r.read("robust_support_window_keyframes", p.optimization.support_window_keyframes);
   r.read("planar", p.planar);
   r.read("time_jump_reset_sec", p.time_jump_reset_sec);
   r.read("odometry_history_sec", p.odometry_history_sec);

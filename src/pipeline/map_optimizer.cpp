@@ -18,7 +18,9 @@
 #include <chrono>
 #include <cmath>
 
+#include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/finish_residuals.h"
+#include "toro_ros/core/loop_closure_pairs.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 
@@ -43,6 +45,17 @@ constexpr double kMedianWidthFactor = 250.0;
 // optimum, and warm-started it gets there in one or two iterations, where the last digits took up to
 // ten more (parking-garage) on every job.  The explicit finishes keep the default.
 constexpr double kBackgroundRelativeDecrease = 1e-5;
+
+// Two loop closures agree when their cycle's chi2 is within this chi-square quantile (6 or 3
+// degrees of freedom), scaled like the robust width (a sender whose covariances are too large
+// narrows the width, and its cycles are as small).
+constexpr double kSupportConfidence = 0.999;
+// The support threshold adapts to the agreeing pairs' chi2 once this many are known, and only
+// when their median is this many times below the chi-square median (real residuals are not
+// exactly chi-square: heavier tails, correlated noise).
+constexpr std::size_t kMinPairsToAdaptSupport = 10;
+constexpr double kSupportLenience = 4.0;
+constexpr std::size_t kPairSample = 1000;
 
 constexpr const char* kArrivalReason = "loop closure: failed the chi-square gate";
 constexpr const char* kRecheckReason = "loop closure: failed the chi-square gate on re-check";
@@ -84,6 +97,7 @@ std::string OptimizationOptions::validate() const {
   if (!(std::isfinite(finish_min_interval_sec) && finish_min_interval_sec >= 0))
     return "optimization finish_min_interval_sec must be >= 0";
   if (finish_max_iterations <= 0) return "optimization finish_max_iterations must be > 0";
+  if (support_window_keyframes < 0) return "optimization support_window_keyframes must be >= 0";
   if (!(std::isfinite(finish_chi2_tolerance) && finish_chi2_tolerance >= 0))
     return "optimization finish_chi2_tolerance must be >= 0";
   return "";
@@ -149,6 +163,7 @@ MapOptimizer::MapOptimizer(const OptimizationOptions& optimization, const toro::
       warn_(std::move(warn)),
       robust_width_(robust.width),
       last_chi2_(kNaN),
+      weighted_chi2_(kNaN),
       finished_chi2_(kNaN) {
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
 }
@@ -191,11 +206,162 @@ std::string MapOptimizer::addLoopClosure(const toro::Constraint& loop_closure, c
   is_loop_closure_.push_back(true);
   ++revision_;
   ++counters_->loop_closures_applied;
+  const bool was_pending = affected_pending_, was_due = finish_due_;
   affected_pending_ = true;
   finish_due_ = true;
   if (counters_->loop_closures_applied <= kEarlyLoopClosures) adaptRobustWidth();
   ++loop_closures_since_full_;
+  const std::size_t c = optimizer_.graph().numConstraints() - 1;
+  judgeSupport(c);
+  if (optimizer_.weightCap(c) < 1.0 && !gateEnabled()) {
+    // Held: nothing to correct for it, so no pass and no finish on its account (one a released
+    // neighbour asked for stays asked for).
+    affected_pending_ = was_pending || affected_pending_released_;
+    finish_due_ = was_due || affected_pending_released_;
+    --loop_closures_since_full_;
+  }
+  affected_pending_released_ = false;
   return "";
+}
+
+// ---- support ----------------------------------------------------------------------------------
+
+double MapOptimizer::supportThreshold() const {
+  const double dof = planar_ ? 3.0 : 6.0;
+  const double quantile = toro::chiSquareQuantile(kSupportConfidence, dof);
+  if (agreeing_pair_chi2_.size() < kMinPairsToAdaptSupport) return quantile;
+  // Senders whose covariances are far too large (parking-garage.g2o: residuals ~1e-4 of the
+  // declared ones) make every cycle look consistent, wrong ones too: the threshold narrows by the
+  // ratio of the agreeing pairs' median to the chi-square median, never widens.  Stable: the
+  // pairs it keeps are cut at the 0.999 quantile of their own distribution, which leaves the
+  // median as it is.
+  std::vector<double> sample = agreeing_pair_chi2_;
+  const auto middle = sample.begin() + static_cast<std::ptrdiff_t>(sample.size() / 2);
+  std::nth_element(sample.begin(), middle, sample.end());
+  const double ratio = kSupportLenience * *middle / toro::chiSquareQuantile(0.5, dof);
+  return quantile * std::min(1.0, ratio);
+}
+
+bool MapOptimizer::agreesWithMap(std::size_t c) const {
+  // Full weight by the kernel on its own residual: applying it moves the map by no more than the
+  // right loop closures around it do.
+  return toro::constraintChi2(optimizer_.graph(), c) <= robust_width_;
+}
+
+const std::vector<std::size_t>& MapOptimizer::odometrySteps() {
+  const toro::PoseGraph& g = optimizer_.graph();
+  for (std::size_t v = odometry_steps_.size(); v < g.numNodes(); ++v) {
+    std::size_t step = toro::kNoOdometry;
+    if (v > 0)
+      for (std::size_t c : optimizer_.incident(v))
+        if (!is_loop_closure_[c] && std::min(optimizer_.fromIndex(c), optimizer_.toIndex(c)) == v - 1) {
+          step = c;
+          break;
+        }
+    odometry_steps_.push_back(step);
+  }
+  return odometry_steps_;
+}
+
+bool MapOptimizer::hasConsistentPartner(std::size_t c, bool release_held) {
+  const toro::PoseGraph& g = optimizer_.graph();
+  const std::vector<std::size_t>& steps = odometrySteps();
+  const std::size_t window = static_cast<std::size_t>(options_.support_window_keyframes);
+  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
+  const double threshold = supportThreshold();
+  const auto near = [window](std::size_t x, std::size_t y) { return (x > y ? x - y : y - x) <= window; };
+  bool found = false;
+  // Every loop closure with one end within the window of a: the other end must be near b.
+  const std::size_t lo = a > window ? a - window : 0, hi = std::min(g.numNodes() - 1, a + window);
+  for (std::size_t u = lo; u <= hi; ++u) {
+    for (std::size_t j : optimizer_.incident(u)) {
+      if (j == c || !is_loop_closure_[j] || odometryVerdict(j) < 0) continue;
+      const std::size_t other = optimizer_.fromIndex(j) == u ? optimizer_.toIndex(j) : optimizer_.fromIndex(j);
+      if (!near(other, b)) continue;
+      if (std::minmax(u, other) == std::minmax(a, b)) continue;  // the same two poses: no second view
+      const double chi2 = toro::loopClosurePairChi2(g, steps, c, j, planar_);
+      if (!(chi2 >= 0.0 && chi2 <= threshold)) continue;
+      // The newest kPairSample agreeing cycles (a ring): the threshold's statistic.
+      if (agreeing_pair_chi2_.size() < kPairSample) agreeing_pair_chi2_.push_back(chi2);
+      else agreeing_pair_chi2_[pairs_seen_ % kPairSample] = chi2;
+      ++pairs_seen_;
+      found = true;
+      if (!release_held) return true;
+      if (optimizer_.weightCap(j) < 1.0) release(j);
+    }
+  }
+  return found;
+}
+
+void MapOptimizer::release(std::size_t c) {
+  optimizer_.setWeightCap(c, 1.0);
+  optimizer_.markAffected(c);
+  affected_pending_ = affected_pending_released_ = true;
+  finish_due_ = true;
+  ++counters_->loop_closures_released;
+  ++revision_;
+}
+
+int MapOptimizer::odometryVerdict(std::size_t c) {
+  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
+  if ((a > b ? a - b : b - a) > static_cast<std::size_t>(options_.support_window_keyframes)) return 0;
+  const double chi2 = toro::loopClosureOdometryChi2(optimizer_.graph(), odometrySteps(), c, planar_);
+  if (!(chi2 >= 0.0)) return 0;
+  return chi2 <= supportThreshold() ? 1 : -1;
+}
+
+void MapOptimizer::judgeSupport(std::size_t c) {
+  if (!supportEnabled()) return;
+  // Ends a few keyframes apart: the odometry between them decides (a short chain is precise).
+  const int verdict = odometryVerdict(c);
+  if (verdict > 0) return;
+  // A neighbour is looked for even when the map agrees: a held one it agrees with is released.
+  if (verdict == 0 && (hasConsistentPartner(c, true) || agreesWithMap(c))) return;
+  optimizer_.setWeightCap(c, 0.0);
+  ++counters_->loop_closures_held;
+}
+
+bool MapOptimizer::releaseAgreed() {
+  if (!supportEnabled()) return false;
+  bool any = false;
+  for (std::size_t c = 0; c < is_loop_closure_.size(); ++c) {
+    if (!is_loop_closure_[c] || !(optimizer_.weightCap(c) < 1.0) || !agreesWithMap(c) || odometryVerdict(c) < 0)
+      continue;
+    release(c);
+    any = true;
+  }
+  return any;
+}
+
+void MapOptimizer::judgeAllSupport() {
+  if (!supportEnabled()) return;
+  for (std::size_t c = 0; c < is_loop_closure_.size(); ++c)
+    if (is_loop_closure_[c]) {
+      const int verdict = odometryVerdict(c);
+      if (verdict > 0 || (verdict == 0 && (hasConsistentPartner(c, false) || agreesWithMap(c)))) continue;
+      optimizer_.setWeightCap(c, 0.0);
+    }
+}
+
+std::size_t MapOptimizer::heldLoopClosures() const {
+  std::size_t n = 0;
+  for (std::size_t c = 0; c < is_loop_closure_.size(); ++c)
+    if (is_loop_closure_[c] && optimizer_.weightCap(c) < 1.0) ++n;
+  return n;
+}
+
+void MapOptimizer::updateChi2() {
+  const toro::PoseGraph& g = optimizer_.graph();
+  const std::vector<double>& w = optimizer_.weights();
+  const double set_aside = toro::FinishOptions{}.robust_set_aside_weight;
+  double plain = 0.0, weighted = 0.0;
+  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
+    const double chi2 = toro::constraintChi2(g, c);
+    plain += chi2;
+    if (!(w[c] < set_aside)) weighted += w[c] * chi2;
+  }
+  last_chi2_ = plain;
+  weighted_chi2_ = weighted;
 }
 
 // ---- the schedule -----------------------------------------------------------------------------
@@ -205,7 +371,7 @@ void MapOptimizer::runAffectedPass() {
   ++revision_;
   ++counters_->optimization_passes;
   affected_pending_ = false;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  updateChi2();
 }
 
 void MapOptimizer::runFullPass() {
@@ -215,7 +381,7 @@ void MapOptimizer::runFullPass() {
   // A full pass covers everything added so far.
   optimizer_.clearAffected();
   affected_pending_ = false;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  updateChi2();
 }
 
 bool MapOptimizer::runScheduledStep(const ros::Time& now) {
@@ -245,6 +411,7 @@ bool MapOptimizer::runScheduledStep(const ros::Time& now) {
   if (full_passes_left_ == 0) {
     recheckLoopClosures();
     adaptRobustWidth();
+    releaseAgreed();
   }
   return true;
 }
@@ -273,13 +440,15 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
   for (const toro::Node& n : outcome.graph.nodes()) poses.push_back(n.pose);
   optimizer_.setPoses(poses);
   optimizer_.refreshWeights();
+  releaseAgreed();
+  updateChi2();
   ++revision_;
   r.chi2_before = outcome.chi2_before;
-  r.chi2_after = last_chi2_ = outcome.chi2_after;
+  r.chi2_after = outcome.chi2_after;
   r.time_sec = last_optimization_sec_ = outcome.seconds;
   r.iterations = static_cast<int>(outcome.iterations);
   r.message = std::to_string(outcome.iterations) + " Levenberg-Marquardt iterations";
-  finished_chi2_ = last_chi2_;
+  finished_chi2_ = outcome.chi2_after;
   r.success = true;
   // The map is at the optimum of everything it holds: nothing is due.
   finish_due_ = false;
@@ -307,7 +476,8 @@ OptimizeResult MapOptimizer::optimize(unsigned iterations, bool finish) {
   optimizer_.clearAffected();
   ++revision_;
   counters_->optimization_passes += r.iterations;
-  r.chi2_after = last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  updateChi2();
+  r.chi2_after = last_chi2_;
   last_optimization_sec_ = r.time_sec;
   r.success = true;
   r.message = std::to_string(r.iterations) + " full passes";
@@ -347,8 +517,8 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
     return std::nullopt;
   if (!last_finish_stamp_.isZero() && (now - last_finish_stamp_).toSec() < options_.finish_min_interval_sec)
     return std::nullopt;
-  if (std::isfinite(finished_chi2_) && std::isfinite(last_chi2_) &&
-      last_chi2_ <= (1.0 + options_.finish_chi2_tolerance) * finished_chi2_)
+  if (std::isfinite(finished_chi2_) && std::isfinite(weighted_chi2_) &&
+      weighted_chi2_ <= (1.0 + options_.finish_chi2_tolerance) * finished_chi2_)
     return std::nullopt;  // still due: a later pass may take the map further from the optimum
   FinishJob job = makeFinishJob(static_cast<unsigned>(options_.finish_max_iterations));
   job.options.relative_decrease_tolerance = kBackgroundRelativeDecrease;
@@ -405,26 +575,28 @@ bool MapOptimizer::mergeFinish(const FinishOutcome& outcome) {
   std::vector<std::size_t> down_weighted;
   const std::vector<double>& w = optimizer_.weights();
   for (std::size_t c = 0; c < w.size(); ++c)
-    if (w[c] < 1.0) down_weighted.push_back(c);
+    if (w[c] < 1.0 && optimizer_.weightCap(c) > 0.0) down_weighted.push_back(c);
   optimizer_.refreshWeights(down_weighted);
   finished_chi2_ = outcome.chi2_after;
   // Loop closures that arrived meanwhile were corrected on the old poses: their correction is
   // redone on the finished ones now, so the map published after the merge holds them.
   // What counted as new for the affected passes is settled by the finish, except what came after it.
   optimizer_.clearAffected();
+  // Held loop closures the finished map agrees with count from now on (their pass comes below).
+  const bool released = releaseAgreed();
   bool newer_loop_closures = false;
   for (std::size_t c = constraints; c < g.numConstraints(); ++c) {
     if (!is_loop_closure_[c]) continue;
     optimizer_.markAffected(c);
     newer_loop_closures = true;
   }
-  if (newer_loop_closures) {
+  if (newer_loop_closures || released) {
     optimizer_.iterateAffected(1);
     ++counters_->optimization_passes;
     finish_due_ = true;
   }
   affected_pending_ = false;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  updateChi2();
   record.merged = true;
   last_finish_ = record;
   ++counters_->finishes_merged;
@@ -436,7 +608,7 @@ bool MapOptimizer::mergeFinish(const FinishOutcome& outcome) {
 
 // ---- graph replacement, reset, load, tuning ---------------------------------------------------
 
-void MapOptimizer::replaceGraph(const toro::PoseGraph& graph) {
+void MapOptimizer::replaceGraph(const toro::PoseGraph& graph, const std::vector<double>& caps) {
   // Replayed through the online path (addNode/addConstraint keep the given poses, as kFromGraph
   // would) rather than setGraph: that is the path every live keyframe takes.
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
@@ -446,8 +618,10 @@ void MapOptimizer::replaceGraph(const toro::PoseGraph& graph) {
     k.kind = c < is_loop_closure_.size() && is_loop_closure_[c] ? toro::ConstraintKind::kLoopClosure
                                                                 : toro::ConstraintKind::kOdometry;
     optimizer_.addConstraint(k);
+    if (c < caps.size() && caps[c] < 1.0) optimizer_.setWeightCap(c, caps[c]);
   }
   optimizer_.clearAffected();
+  odometry_steps_.clear();
   finished_chi2_ = kNaN;
   ++structure_;
   ++revision_;
@@ -463,7 +637,10 @@ void MapOptimizer::clear() {
   loop_closures_since_full_ = keyframes_since_full_ = 0;
   last_full_stamp_ = ros::Time();
   full_passes_left_ = 0;
-  last_chi2_ = kNaN;
+  last_chi2_ = weighted_chi2_ = kNaN;
+  odometry_steps_.clear();
+  agreeing_pair_chi2_.clear();
+  pairs_seen_ = 0;
   finish_due_ = false;
   last_finish_stamp_ = ros::Time();
   finished_chi2_ = kNaN;
@@ -477,6 +654,7 @@ void MapOptimizer::load(const toro::PoseGraph& graph, const std::vector<bool>& i
   clear();
   is_loop_closure_ = is_loop_closure;
   replaceGraph(graph);
+  judgeAllSupport();
   rejected_ = rejected;
   last_full_stamp_ = newest;
   // The map stays as it was saved until new input arrives (a saved map is usually a finished one;
@@ -564,6 +742,8 @@ void MapOptimizer::settleGate() {
 void MapOptimizer::rejectCandidate(double chi2) {
   const toro::PoseGraph now = optimizer_.graph();
   const toro::Constraint candidate = now.constraints()[gate_constraint_];
+  std::vector<double> later_caps;  // of the constraints after the candidate
+  for (std::size_t c = gate_constraint_ + 1; c < now.numConstraints(); ++c) later_caps.push_back(optimizer_.weightCap(c));
   optimizer_ = std::move(*before_gate_);
   before_gate_.reset();
   // Keyframes made while the candidate was on trial: each keeps its pose relative to the one
@@ -572,12 +752,14 @@ void MapOptimizer::rejectCandidate(double chi2) {
     const toro::Pose3 step = toro::relativePose(now.node(i - 1).pose, now.node(i).pose);
     optimizer_.addNode(now.node(i).id, optimizer_.graph().node(i - 1).pose * step);
   }
-  for (std::size_t c = gate_constraint_ + 1; c < now.numConstraints(); ++c)
-    optimizer_.addConstraint(now.constraints()[c]);
+  for (std::size_t c = gate_constraint_ + 1; c < now.numConstraints(); ++c) {
+    const std::size_t added = optimizer_.addConstraint(now.constraints()[c]);
+    if (later_caps[c - gate_constraint_ - 1] < 1.0) optimizer_.setWeightCap(added, later_caps[c - gate_constraint_ - 1]);
+  }
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(gate_constraint_));
   ++structure_;
   finished_chi2_ = kNaN;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  updateChi2();
   if (loop_closures_since_full_ > 0) --loop_closures_since_full_;
   --counters_->loop_closures_applied;
   ++counters_->loop_closures_rejected;
@@ -628,7 +810,7 @@ bool MapOptimizer::readmitRejected() {
   affected_pending_ = true;
   finish_due_ = true;
   loop_closures_since_full_ += readmitted;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  updateChi2();
   ++revision_;
   return true;
 }
@@ -653,10 +835,13 @@ bool MapOptimizer::recheckLoopClosures() {
   for (std::size_t c = 0; c < g.numConstraints(); ++c)
     if (c != worst) without.addConstraint(g.constraints()[c]);
   const toro::Constraint removed = g.constraints()[worst];
+  std::vector<double> caps;
+  for (std::size_t c = 0; c < g.numConstraints(); ++c)
+    if (c != worst) caps.push_back(optimizer_.weightCap(c));
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(worst));
-  replaceGraph(without);
+  replaceGraph(without, caps);
   finish_due_ = true;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  updateChi2();
   --counters_->loop_closures_applied;
   ++counters_->loop_closures_rejected;
   ++counters_->loop_closures_refused;

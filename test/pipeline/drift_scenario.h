@@ -31,6 +31,9 @@ inline PipelineOptions baseTestOptions() {
   o.keyframer.interval_sec = 0;
   o.matcher.stamp_tolerance_sec = 0.15;
   o.optimization.full_every_sec = 0;
+  // The scenarios below close their loops with one loop closure; holding loop closures until a
+  // second one agrees (the default) is tested on its own (test_pipeline_support.cpp).
+  o.optimization.hold_until_supported = false;
   return o;
 }
 
@@ -103,6 +106,14 @@ inline LoopClosure trueLoopClosure(const DriftScenario& s, std::size_t i, std::s
     lc.covariance[7 * (k + 3)] = stddev_rad * stddev_rad;
   }
   return lc;
+}
+
+// A revisit as a place recogniser reports it: the loop closure (i, j) and its neighbour
+// (i + step, j - step), samples half a metre along at 1 m/s and 0.1 s (the default options hold a
+// lone loop closure that would bend the map until a second one agrees with it).
+inline std::vector<LoopClosure> revisitLoopClosures(const DriftScenario& s, std::size_t i, std::size_t j,
+                                                    std::size_t step = 5) {
+  return {trueLoopClosure(s, i, j), trueLoopClosure(s, i + step, j - step)};
 }
 
 }  // namespace testing

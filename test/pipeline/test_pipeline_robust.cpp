@@ -154,3 +154,109 @@ TEST(PipelineRobust, OffByParameterAndStatusReportsTheWidth) {
   o.robust = toro::RobustOptions{toro::RobustKernel::kDcs, -1.0};
   EXPECT_THROW(Pipeline bad(o), std::invalid_argument);
 }
+
+// ---- support: loop closures that would bend the map wait for a second one ------------------------
+
+namespace {
+
+PipelineOptions withSupport() {
+  PipelineOptions o = options();
+  o.optimization.hold_until_supported = true;  // the node's default (the test options turn it off)
+  return o;
+}
+
+// The sample `i` samples on from `j` along the same lap's side: the ground a revisit covers.
+LoopClosure consistentWith(const DriftScenario& sc, const LoopClosure& lc, std::size_t i_from, std::size_t i_to) {
+  // lc claims from_T_to; the same claim carried along the odometry to (i_from, i_to).
+  std::size_t a = 0, b = 0;
+  for (std::size_t k = 0; k < sc.odometry.size(); ++k) {
+    if (sc.odometry[k].header.stamp == lc.stamp_from) a = k;
+    if (sc.odometry[k].header.stamp == lc.stamp_to) b = k;
+  }
+  LoopClosure out = lc;
+  out.stamp_from = sc.odometry[i_from].header.stamp;
+  out.stamp_to = out.header.stamp = sc.odometry[i_to].header.stamp;
+  const auto odom = [&](std::size_t k) { return poseFromMsg(sc.odometry[k].pose.pose); };
+  out.from_T_to = poseToMsg(toro::relativePose(odom(i_from), odom(a)) * poseFromMsg(lc.from_T_to) *
+                            toro::relativePose(odom(b), odom(i_to)));
+  return out;
+}
+
+}  // namespace
+
+TEST(PipelineSupport, WrongLoopClosureFirstNeverMovesTheMapAndRightOnesLaterEndLikeTheCleanRun) {
+  const Drive clean = drive(false, withSupport());
+  const Drive with_wrong = drive(true, withSupport());
+  std::cout << "RMS against truth with support: clean " << clean.rms << " m, with the wrong loop closure "
+            << with_wrong.rms << " m; largest move when it arrived " << with_wrong.largest_move_at_wrong << " m\n";
+  // Every right loop closure of the clean run found a neighbour (the corners of a lap are within
+  // the window of each other), and the map is corrected as well as without support.
+  EXPECT_EQ(clean.down_weighted, 0u);
+  EXPECT_LT(clean.rms, 0.2);
+  // The wrong one moved nothing at all (held at weight 0 from its arrival) and is still held.
+  EXPECT_LT(with_wrong.largest_move_at_wrong, 1e-12);
+  ASSERT_EQ(with_wrong.down_weighted, 1u);
+  EXPECT_EQ(with_wrong.which[0].weight, 0.0);
+  EXPECT_LT(std::abs(with_wrong.rms - clean.rms), 0.25 * clean.rms);
+}
+
+TEST(PipelineSupport, LoneRightLoopClosureWaitsForItsNeighbourThenBothCorrectTheMap) {
+  const DriftScenario sc = makeDriftingSquare(2);
+  Pipeline p(withSupport());
+  for (std::size_t i = 0; i <= corner(1, 0) + 5; ++i) p.handleOdometry(sc.odometry[i]);
+  drain(p);
+  const auto before = p.makeSnapshot();
+  p.handleLoopClosure(trueLoopClosure(sc, 5, corner(1, 0) + 5));
+  drain(p);
+  const auto held = p.makeSnapshot();
+  EXPECT_LT(largestMove(*before, *held), 1e-12);
+  EXPECT_EQ(held->edges.back().weight, 0.0);
+  EXPECT_EQ(p.status().counters.loop_closures_held, 1u);
+  EXPECT_EQ(p.status().counters.loop_closures_released, 0u);
+  // Half a metre on, the recogniser reports the next keyframe pair: the two agree.
+  for (std::size_t i = corner(1, 0) + 6; i <= corner(1, 0) + 10; ++i) p.handleOdometry(sc.odometry[i]);
+  p.handleLoopClosure(trueLoopClosure(sc, 10, corner(1, 0) + 10));
+  drain(p);
+  const auto after = p.makeSnapshot();
+  EXPECT_EQ(p.status().counters.loop_closures_held, 1u);
+  EXPECT_EQ(p.status().counters.loop_closures_released, 1u);
+  EXPECT_EQ(after->down_weighted_loop_closures, 0u);
+  EXPECT_GT(largestMove(*before, *after), 0.5);  // the drift of a lap is corrected
+  // Without support the first one alone would have corrected it: the price is one loop closure.
+  PipelineOptions o = withSupport();
+  o.optimization.hold_until_supported = false;
+  Pipeline at_once(o);
+  for (std::size_t i = 0; i <= corner(1, 0) + 5; ++i) at_once.handleOdometry(sc.odometry[i]);
+  at_once.handleLoopClosure(trueLoopClosure(sc, 5, corner(1, 0) + 5));
+  drain(at_once);
+  EXPECT_GT(largestMove(*before, *at_once.makeSnapshot()), 0.5);
+}
+
+TEST(PipelineSupport, WrongNearbyLoopClosuresThatAgreeWithEachOtherStayHeldByTheOdometry) {
+  // Two loop closures a few keyframes apart claiming the robot came back 2 m after it left a
+  // place, consistent with each other by construction (a repeated confusion of two similar
+  // places), but not with the short odometry between their ends.
+  const DriftScenario sc = makeDriftingSquare(1);
+  Pipeline p(withSupport());
+  for (std::size_t i = 0; i <= 70; ++i) p.handleOdometry(sc.odometry[i]);
+  drain(p);
+  const auto before = p.makeSnapshot();
+  LoopClosure first = trueLoopClosure(sc, 40, 60);
+  first.from_T_to = poseToMsg(toro::Pose3());  // "the same place"
+  p.handleLoopClosure(first);
+  p.handleLoopClosure(consistentWith(sc, first, 45, 65));
+  drain(p);
+  EXPECT_EQ(p.status().counters.loop_closures_applied, 2u);
+  EXPECT_EQ(p.status().counters.loop_closures_held, 2u);
+  EXPECT_EQ(p.status().counters.loop_closures_released, 0u);
+  EXPECT_LT(largestMove(*before, *p.makeSnapshot()), 1e-12);
+  // Far apart, the same two would have supported each other: the odometry decides only nearby.
+  Pipeline far(withSupport());
+  const DriftScenario two = makeDriftingSquare(2);
+  for (std::size_t i = 0; i <= corner(1, 0) + 20; ++i) far.handleOdometry(two.odometry[i]);
+  LoopClosure far_first = trueLoopClosure(two, 40, corner(1, 0) + 10);
+  far.handleLoopClosure(far_first);
+  far.handleLoopClosure(consistentWith(two, far_first, 45, corner(1, 0) + 15));
+  drain(far);
+  EXPECT_EQ(far.status().counters.loop_closures_released, 1u);
+}

@@ -146,6 +146,12 @@ class TreeOptimizer {
   // Changes the robust kernel's width (graduated robustness: a wide kernel first, narrowed over
   // iterations); takes effect at the next weight refresh.
   void setRobustWidth(double width) { options_.robust.width = width; }
+  // An upper bound on robust loop closure c's weight, in [0, 1] (1 unless set): the weight is the
+  // kernel's, but never above the cap.  The caller's judgement on top of the residual's (the
+  // pipeline holds a loop closure at 0 until another one agrees with it).  The weight and the
+  // preconditioner follow at once.  No effect on constraints that are not robust.
+  void setWeightCap(std::size_t c, double cap);
+  double weightCap(std::size_t c) const { return weight_cap_[c]; }
 
   // The graph with the current pose estimates (2D, exactly planar, when planar()).
   const PoseGraph& graph() const { return graph_; }
@@ -178,7 +184,8 @@ class TreeOptimizer {
   std::vector<std::size_t> sortedByTopLevel(std::vector<std::size_t> constraints);
   // A robust constraint's weight (options_.robust_by_innovation: from its innovation, see the
   // .cpp), and in `judged_chi2` the chi2 the kernel was applied to.
-  double innovationWeight(std::size_t c, double* judged_chi2);
+  double innovationWeight(std::size_t c, double* judged_chi2);  // the kernel's, capped (weight_cap_)
+  double kernelWeight(std::size_t c, double* judged_chi2);
 
   // Group dispatchers (tree_optimizer_update.cpp): each calls the template for the chosen group.
   void clearParameters();
@@ -262,6 +269,7 @@ class TreeOptimizer {
   std::vector<double> constraint_rotation_info_;
   std::vector<double> constraint_translation_info_;
   std::vector<double> robust_weight_;  // per constraint, 1 unless robust_
+  std::vector<double> weight_cap_;     // per constraint, the caller's bound on robust_weight_
   std::vector<double> arrival_chi2_;   // per constraint, see arrivalChi2()
   std::vector<double> preconditioned_weight_;  // the weight whose share the preconditioner holds
   std::vector<char> robust_;           // per constraint: a loop closure weighted robustly

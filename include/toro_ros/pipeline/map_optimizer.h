@@ -52,6 +52,16 @@ struct OptimizationOptions {
   double finish_min_interval_sec = 1.0;
   int finish_max_iterations = 20;
   double finish_chi2_tolerance = 0.01;
+  // Support (with robust loop closures on): a new loop closure that would bend the map (its g2o
+  // chi2 on the map as it is exceeds the robust width) is held at weight 0 until another loop
+  // closure whose ends lie within `support_window_keyframes` keyframes of its ends agrees with it
+  // (toro::loopClosurePairChi2: the cycle of the two and the odometry between them, whatever the
+  // map), or until the map comes to agree with it.  Why: a wrong loop closure between distant
+  // places meets a long, compliant path, so no test of it alone rejects it, and once applied it
+  // bends the map for everyone; a right one of a revisit has neighbours that say the same.  The
+  // price: the first loop closure of a revisit corrects the map when the second arrives.
+  bool hold_until_supported = true;
+  int support_window_keyframes = 25;
   std::string validate() const;
 };
 
@@ -150,6 +160,8 @@ class MapOptimizer {
   const std::vector<double>& weights() const { return optimizer_.weights(); }
   const std::vector<RejectedLoopClosure>& rejected() const { return rejected_; }
   std::vector<DownWeightedLoopClosure> downWeighted() const;
+  // Loop closures held for want of support now (weight 0; see OptimizationOptions).
+  std::size_t heldLoopClosures() const;
   double gateThreshold() const { return gate_threshold_; }
   double robustWidth() const { return robust_.enabled() ? robust_width_ : 0.0; }
   double lastChi2() const { return last_chi2_; }
@@ -167,7 +179,8 @@ class MapOptimizer {
   // False (and said once) when constraints leave axes unmeasured: the background finish is off.
   bool finishDetermined();
   // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints.
-  void replaceGraph(const toro::PoseGraph& graph);
+  // `caps`: each constraint's weight cap (TreeOptimizer::setWeightCap), empty for none.
+  void replaceGraph(const toro::PoseGraph& graph, const std::vector<double>& caps = {});
   void adaptRobustWidth();
   // The gate: remember the state before a loop closure, test it after its pass.
   bool gateEnabled() const { return gate_threshold_ < std::numeric_limits<double>::infinity(); }
@@ -177,6 +190,24 @@ class MapOptimizer {
   bool recheckLoopClosures();
   bool readmitRejected();
   void refuse(const std::string& category, const std::string& detail);
+  // Support (OptimizationOptions::hold_until_supported).  judgeSupport: a new loop closure agrees
+  // with the map, or with a neighbour (which is released if it was held), or is held.
+  // releaseAgreed: held ones the map now agrees with.  judgeAllSupport: every loop closure, as
+  // after a load.
+  bool supportEnabled() const { return options_.hold_until_supported && robust_.enabled(); }
+  void judgeSupport(std::size_t c);
+  bool releaseAgreed();
+  void judgeAllSupport();
+  void release(std::size_t c);
+  bool agreesWithMap(std::size_t c) const;
+  double supportThreshold() const;
+  // Ends within the support window: +1 the odometry between them agrees, -1 it contradicts; 0
+  // farther apart (or not connected by odometry): the odometry cannot tell.
+  int odometryVerdict(std::size_t c);
+  bool hasConsistentPartner(std::size_t c, bool release_held);
+  const std::vector<std::size_t>& odometrySteps();
+  // last_chi2_ and weighted_chi2_ from the current poses.
+  void updateChi2();
 
   OptimizationOptions options_;
   toro::RobustOptions robust_;
@@ -189,10 +220,17 @@ class MapOptimizer {
   std::vector<bool> is_loop_closure_;  // per constraint index
   double robust_width_;                // the robust kernel's width now (adapted)
   double last_chi2_;
+  // The chi2 with each loop closure's information scaled by its weight (those below the finish's
+  // set-aside weight left out): what a finish minimises, so what the tolerance compares.
+  double weighted_chi2_;
+  std::vector<std::size_t> odometry_steps_;  // per node: toro::odometrySteps, grown lazily
+  std::vector<double> agreeing_pair_chi2_;   // cycles of loop closures that agreed (support)
+  std::size_t pairs_seen_ = 0;
   double last_optimization_sec_ = 0.0;
   std::uint64_t revision_ = 0;
   // Schedule state (message time, never wall time).
   bool affected_pending_ = false;
+  bool affected_pending_released_ = false;  // a release asked for a pass (within addLoopClosure)
   std::size_t loop_closures_since_full_ = 0;  // since the last full round or finish job
   std::size_t keyframes_since_full_ = 0;
   ros::Time last_full_stamp_;

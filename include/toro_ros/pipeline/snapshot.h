@@ -23,6 +23,10 @@ struct PipelineCounters {
   std::uint64_t loop_closures_refused = 0;   // includes the rejected ones
   std::uint64_t loop_closures_rejected = 0;  // applied, then refused by the chi-square gate (now)
   std::uint64_t loop_closures_readmitted = 0;  // rejected ones applied again when the map agreed
+  // Support (OptimizationOptions::hold_until_supported): loop closures held at weight 0 when they
+  // arrived, and those of them released since (a neighbour or the map agreed).
+  std::uint64_t loop_closures_held = 0;
+  std::uint64_t loop_closures_released = 0;
   std::uint64_t time_jump_resets = 0;
   std::uint64_t resets = 0;               // all resets (time jumps, service, load)
   std::uint64_t optimization_passes = 0;  // full and affected passes run

@@ -1,0 +1,44 @@
+// Whether two loop closures agree with each other, whatever the map: the pairwise consistency test
+// of Mangelson, Dominic, Eustice and Vasudevan ("Pairwise Consistent Measurement Set Maximization
+// for Robust Multi-robot Map Merging", ICRA 2018), on one robot's odometry.  Two loop closures
+// a -> b and c -> d whose ends lie near each other (c near a, d near b) and the odometry between
+// the near ends form a cycle
+//   x_a^-1 x_b  =  (x_a^-1 x_c) (x_c^-1 x_d) (x_d^-1 x_b)  =  O_ac Z_cd O_db,
+// so Z_ab^-1 O_ac Z_cd O_db is the identity up to the noise of its four parts when both are right.
+// Why this test and not the map's residual: it reads only measurements, so it is as good on a map
+// that has not converged, or that a wrong loop closure bent, as on a settled one; and a wrong loop
+// closure between two places has a right partner only by chance (a second wrong one saying the
+// same thing), where a right one of a revisit has its neighbours.
+#pragma once
+
+#include <cstddef>
+#include <limits>
+#include <vector>
+
+#include "toro_ros/core/pose_graph.h"
+
+namespace toro {
+
+constexpr std::size_t kNoOdometry = std::numeric_limits<std::size_t>::max();
+
+// The odometry steps of a graph whose nodes are in driving order (dense index v follows v - 1):
+// for each node, the index of an odometry constraint (not isLoopClosure, or as `is_loop_closure`
+// says) between it and the node before, or kNoOdometry (the first node, or a gap).
+std::vector<std::size_t> odometrySteps(const PoseGraph& graph, const std::vector<bool>& is_loop_closure);
+
+// The chi2 of the cycle of loop closures `c1` and `c2` over the odometry between their near ends
+// (first-order covariance of the four parts carried into one frame; g2o chi2 units, x, y and yaw
+// only when `planar`), or -1 when the odometry does not connect the near ends.  Which ends are near
+// is taken from the dense indices (the orientation with the shorter odometry).  Cost: linear in
+// the number of odometry steps between the near ends.
+double loopClosurePairChi2(const PoseGraph& graph, const std::vector<std::size_t>& odometry_steps, std::size_t c1,
+                           std::size_t c2, bool planar);
+
+// The chi2 of loop closure `c` against the odometry between its two ends (the cycle Z^-1 O_ab):
+// a strong test where the two ends are a few steps apart (a place recogniser confusing nearby,
+// similar-looking places), a weak one over a long stretch of drift.  -1 when the odometry does
+// not connect them.  Cost: linear in the odometry steps between the ends.
+double loopClosureOdometryChi2(const PoseGraph& graph, const std::vector<std::size_t>& odometry_steps, std::size_t c,
+                               bool planar);
+
+}  // namespace toro

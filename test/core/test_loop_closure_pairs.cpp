@@ -1,0 +1,136 @@
+// The pairwise consistency of loop closures over the odometry (core/loop_closure_pairs.h).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "toro_ros/core/loop_closure_pairs.h"
+#include "toro_ros/core/pose_graph.h"
+
+using namespace toro;
+
+namespace {
+
+// Information with the given standard deviations, in g2o's quaternion units (rotation x4).
+Matrix6 informationOf(double stddev_m, double stddev_rad) {
+  Matrix6 info = Matrix6::Zero();
+  for (int k = 0; k < 3; ++k) {
+    info(k, k) = 1.0 / (stddev_m * stddev_m);
+    info(k + 3, k + 3) = 4.0 / (stddev_rad * stddev_rad);
+  }
+  return info;
+}
+
+// A corridor driven there and back: 40 poses, 1 m steps with a 180 degree turn at pose 20, so
+// pose 20 + k and pose 20 - k are the same place seen from either way (true poses in `truth`).
+struct Corridor {
+  PoseGraph graph;
+  std::vector<Pose3> truth;
+};
+
+Corridor corridor(bool planar_only) {
+  Corridor c;
+  Pose3 pose;
+  for (int i = 0; i < 40; ++i) {
+    c.truth.push_back(pose);
+    c.graph.addNode(i, pose);
+    const Pose3 step = i == 19 ? Pose3::fromRollPitchYaw(0, 0, 0, 0, 0, M_PI)
+                               : Pose3::fromRollPitchYaw(1.0, 0, planar_only ? 0.0 : 0.01, 0, 0, 0);
+    pose = pose * step;
+  }
+  for (int i = 1; i < 40; ++i)
+    c.graph.addConstraint({i - 1, i, relativePose(c.truth[i - 1], c.truth[i]), informationOf(0.05, 0.01),
+                           ConstraintKind::kOdometry});
+  return c;
+}
+
+std::size_t addLoopClosure(Corridor& c, int from, int to, const Pose3& error = Pose3()) {
+  return c.graph.addConstraint(
+      {from, to, relativePose(c.truth[from], c.truth[to]) * error, informationOf(0.1, 0.05), ConstraintKind::kLoopClosure});
+}
+
+}  // namespace
+
+TEST(LoopClosurePairs, OdometryStepsFollowTheDrivingOrder) {
+  Corridor c = corridor(false);
+  addLoopClosure(c, 15, 25);
+  const std::vector<std::size_t> steps = odometrySteps(c.graph, {});
+  ASSERT_EQ(steps.size(), 40u);
+  EXPECT_EQ(steps[0], kNoOdometry);
+  for (std::size_t v = 1; v < 40; ++v) EXPECT_EQ(steps[v], v - 1);  // constraint v-1 joins v-1 and v
+}
+
+TEST(LoopClosurePairs, TwoRightLoopClosuresAgreeAndAWrongOneDoesNot) {
+  Corridor c = corridor(false);
+  const std::size_t right = addLoopClosure(c, 15, 25);
+  const std::size_t neighbour = addLoopClosure(c, 17, 23);
+  const std::size_t backwards = addLoopClosure(c, 24, 16);  // stored the other way round
+  // Claims the robot was 3 m further than it was (a repeated structure along the corridor).
+  const std::size_t wrong = addLoopClosure(c, 16, 24, Pose3::fromRollPitchYaw(3.0, 0, 0, 0, 0, 0));
+  const std::vector<std::size_t> steps = odometrySteps(c.graph, {});
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, right, neighbour, false), 0.0, 1e-9);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, right, backwards, false), 0.0, 1e-9);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, neighbour, right, false), 0.0, 1e-9);
+  const double chi2 = loopClosurePairChi2(c.graph, steps, right, wrong, false);
+  // 3 m against 0.1 m on both loop closures and ~0.05 m * sqrt(2) of odometry: about (3 / 0.15)^2.
+  EXPECT_GT(chi2, 300.0);
+  EXPECT_LT(chi2, 500.0);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, wrong, right, false), chi2, 1e-6 * chi2);
+}
+
+TEST(LoopClosurePairs, ChiSquareDistributedForRightOnesWithNoise) {
+  // With noise drawn from the declared covariances, the cycle's chi2 has 6 degrees of freedom.
+  std::mt19937 rng(7);
+  std::normal_distribution<double> n(0.0, 1.0);
+  double sum = 0.0;
+  const int runs = 400;
+  for (int r = 0; r < runs; ++r) {
+    Corridor c = corridor(false);
+    PoseGraph noisy;
+    for (const Node& node : c.graph.nodes()) noisy.addNode(node.id, node.pose);
+    const auto noise = [&](double sm, double sr) {
+      return Pose3::fromRollPitchYaw(sm * n(rng), sm * n(rng), sm * n(rng), sr * n(rng), sr * n(rng), sr * n(rng));
+    };
+    for (const Constraint& k : c.graph.constraints()) {
+      Constraint m = k;
+      m.measurement = k.measurement * noise(0.05, 0.01);
+      noisy.addConstraint(m);
+    }
+    c.graph = noisy;
+    const std::size_t a = c.graph.addConstraint({15, 25, relativePose(c.truth[15], c.truth[25]) * noise(0.1, 0.05),
+                                                  informationOf(0.1, 0.05), ConstraintKind::kLoopClosure});
+    const std::size_t b = c.graph.addConstraint({17, 23, relativePose(c.truth[17], c.truth[23]) * noise(0.1, 0.05),
+                                                  informationOf(0.1, 0.05), ConstraintKind::kLoopClosure});
+    sum += loopClosurePairChi2(c.graph, odometrySteps(c.graph, {}), a, b, false);
+  }
+  // Mean 6 (roll-pitch-yaw noise is close to the rotation vector's at these angles).
+  EXPECT_NEAR(sum / runs, 6.0, 1.0);
+}
+
+TEST(LoopClosurePairs, PlanarUsesXYAndYawAndAGapInTheOdometryCannotBeTested) {
+  Corridor c = corridor(true);
+  c.graph.setDimension(GraphDimension::k2D);
+  const std::size_t right = addLoopClosure(c, 15, 25);
+  const std::size_t wrong = addLoopClosure(c, 16, 24, Pose3::fromRollPitchYaw(0, 0, 0, 0, 0, 0.5));
+  std::vector<std::size_t> steps = odometrySteps(c.graph, {});
+  const double chi2 = loopClosurePairChi2(c.graph, steps, right, wrong, true);
+  // 0.5 rad against 0.05 rad on each loop closure: ~ 0.5^2 / (2 * 0.05^2) = 50, plus the lever
+  // arm the yaw error gives the translation.
+  EXPECT_GT(chi2, 40.0);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, right, addLoopClosure(c, 14, 26), true), 0.0, 1e-9);
+  steps = odometrySteps(c.graph, {});
+  steps[16] = kNoOdometry;  // the odometry between 15 and 16 is missing
+  EXPECT_EQ(loopClosurePairChi2(c.graph, steps, right, wrong, true), -1.0);
+}
+
+TEST(LoopClosurePairs, OdometryDecidesNearbyLoopClosures) {
+  Corridor c = corridor(false);
+  const std::size_t right = addLoopClosure(c, 18, 22);
+  const std::size_t wrong = addLoopClosure(c, 10, 13, Pose3::fromRollPitchYaw(-3.0, 0, 0, 0, 0, 0));  // "same place"
+  const std::vector<std::size_t> steps = odometrySteps(c.graph, {});
+  EXPECT_NEAR(loopClosureOdometryChi2(c.graph, steps, right, false), 0.0, 1e-9);
+  EXPECT_GT(loopClosureOdometryChi2(c.graph, steps, wrong, false), 300.0);
+  // The flags say what is odometry: with every constraint a loop closure nothing connects them.
+  const std::vector<bool> all_loop_closures(c.graph.numConstraints(), true);
+  EXPECT_EQ(loopClosureOdometryChi2(c.graph, odometrySteps(c.graph, all_loop_closures), right, false), -1.0);
+}
