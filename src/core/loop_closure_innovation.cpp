@@ -95,8 +95,12 @@ double loopClosureInnovationChi2(const TreeOptimizer& opt, std::size_t c, Innova
   Matrix6 total = around_b + ad_a * around_a * ad_a.transpose();
   for (const auto* branch : {&scratch.up, &scratch.down}) {
     for (std::size_t v : *branch) {
+      const Matrix6 edge = edgeCovariance(opt, v, opt.tree().parent(v), c);
+      // Only down-weighted (or held) loop closures hold this edge: the path says nothing, and a
+      // ~0 chi2 would pass for a measured agreement (it narrowed the adaptive width to nothing).
+      if (!(edge(0, 0) < kUnconstrainedVariance)) return -1.0;
       const Matrix6 ad = adjoint(b_T_world * g.node(v).pose);
-      total += ad * edgeCovariance(opt, v, opt.tree().parent(v), c) * ad.transpose();
+      total += ad * edge * ad.transpose();
     }
   }
   total *= kPathCovarianceLenience;

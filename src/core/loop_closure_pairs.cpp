@@ -1,5 +1,7 @@
 #include "toro_ros/core/loop_closure_pairs.h"
 
+#include "toro_ros/core/odometry_consistency.h"
+
 #include <Eigen/Cholesky>
 #include <cstdlib>
 
@@ -112,19 +114,7 @@ double loopClosureOdometryChi2(const PoseGraph& graph, const std::vector<std::si
 namespace {
 
 double cycleChi2(const UncertainPose& cycle, bool planar) {
-  Vector6 e;
-  e << cycle.pose.translation(), cycle.pose.angleAxis();
-  if (planar) {
-    const int axes[3] = {0, 1, 5};
-    Eigen::Vector3d ep;
-    Matrix3 sp;
-    for (int r = 0; r < 3; ++r) {
-      ep(r) = e(axes[r]);
-      for (int s = 0; s < 3; ++s) sp(r, s) = cycle.covariance(axes[r], axes[s]);
-    }
-    return ep.dot(sp.ldlt().solve(ep));
-  }
-  return e.dot(cycle.covariance.ldlt().solve(e));
+  return poseErrorChi2(cycle.pose, cycle.covariance, planar);
 }
 
 }  // namespace

@@ -80,6 +80,20 @@ std::size_t commonAncestor(const OdometryForest& f, std::size_t a, std::size_t b
 
 }  // namespace
 
+double poseErrorChi2(const Pose3& error, const Matrix6& covariance, bool planar) {
+  Vector6 e;
+  e << error.translation(), error.angleAxis();
+  if (!planar) return e.dot(covariance.ldlt().solve(e));
+  const int axes[3] = {0, 1, 5};
+  Eigen::Vector3d ep;
+  Matrix3 sp;
+  for (int r = 0; r < 3; ++r) {
+    ep(r) = e(axes[r]);
+    for (int s = 0; s < 3; ++s) sp(r, s) = covariance(axes[r], axes[s]);
+  }
+  return ep.dot(sp.ldlt().solve(ep));
+}
+
 std::vector<double> odometryInnovationChi2(const PoseGraph& graph) {
   std::vector<double> out(graph.numConstraints(), -1.0);
   const OdometryForest forest = buildForest(graph);
@@ -97,20 +111,7 @@ std::vector<double> odometryInnovationChi2(const PoseGraph& graph) {
     const Matrix6 a = adjoint(xj.inverse());
     const Matrix6 total = a * world * a.transpose() + covarianceOf(k.information);
     const Pose3 d = k.measurement.inverse() * (xi.inverse() * xj);
-    Vector6 e;
-    e << d.translation(), d.angleAxis();
-    if (planar) {
-      const int axes[3] = {0, 1, 5};
-      Eigen::Vector3d ep;
-      Matrix3 sp;
-      for (int r = 0; r < 3; ++r) {
-        ep(r) = e(axes[r]);
-        for (int s = 0; s < 3; ++s) sp(r, s) = total(axes[r], axes[s]);
-      }
-      out[c] = ep.dot(sp.ldlt().solve(ep));
-    } else {
-      out[c] = e.dot(total.ldlt().solve(e));
-    }
+    out[c] = poseErrorChi2(d, total, planar);
   }
   return out;
 }

@@ -27,7 +27,8 @@ struct InnovationScratch {
 
 // The leave-one-out innovation chi2 of constraint `c` of `optimizer` (units of the g2o chi2).
 // Nodes whose tree edge carries no weighted information (only down-weighted loop closures) make
-// the path unconstrained there: the result is then ~0 (nothing contradicts the loop closure).
+// the path unconstrained there: the result is then -1 (nothing can be judged; the kernel gives
+// full weight, and the value is no sample of the right loop closures' innovations).
 double loopClosureInnovationChi2(const TreeOptimizer& optimizer, std::size_t c, InnovationScratch& scratch);
 
 }  // namespace toro

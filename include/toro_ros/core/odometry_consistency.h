@@ -20,4 +20,8 @@ namespace toro {
 // odometry's (TreeOptimizer's InitialGuess::kChainOdometry); 2D graphs use x, y and yaw only.
 std::vector<double> odometryInnovationChi2(const PoseGraph& graph);
 
+// e^T Sigma^-1 e for a pose error (translation, rotation vector; angle units), on x, y and yaw
+// only when `planar`.
+double poseErrorChi2(const Pose3& error, const Matrix6& covariance, bool planar);
+
 }  // namespace toro
