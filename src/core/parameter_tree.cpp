@@ -115,17 +115,17 @@ void ParameterTree::addNode(const PoseGraph& graph, std::size_t node_index) {
   neighbours_.emplace_back();
 }
 
-void ParameterTree::addConstraint(const PoseGraph& graph, std::size_t constraint_index,
+bool ParameterTree::addConstraint(const PoseGraph& graph, std::size_t constraint_index,
                                   std::vector<std::size_t>* reparented, bool may_be_tree_edge) {
   const Constraint& c = graph.constraints()[constraint_index];
   Index u = graph.indexOf(c.from), v = graph.indexOf(c.to);
   // A constraint kept out of the tree's shape still needs a tree path between its ends.
-  if (!may_be_tree_edge && rootOf(u) == rootOf(v)) return;
+  if (!may_be_tree_edge && rootOf(u) == rootOf(v)) return false;
   neighbours_[u].push_back(v);
   neighbours_[v].push_back(u);
   if (!normal_) {
     rebuildKeepingNeighbours(graph, reparented);
-    return;
+    return true;
   }
   // While the smallest-neighbour rule spans every component, a new constraint can only change the
   // parent of its larger-id end.  The rule stops spanning when the constraint joins two components
@@ -135,15 +135,16 @@ void ParameterTree::addConstraint(const PoseGraph& graph, std::size_t constraint
   const Index root_u = rootOf(u), root_v = rootOf(v);
   if (root_u != root_v && root_v != v) {
     rebuildKeepingNeighbours(graph, reparented);
-    return;
+    return true;
   }
   const Index old_parent = parent_[v];
-  if (old_parent != kNoNode && graph.node(old_parent).id <= graph.node(u).id) return;
+  if (old_parent != kNoNode && graph.node(old_parent).id <= graph.node(u).id) return true;
   if (old_parent != kNoNode) detach(v);
   parent_[v] = u;
   children_[u].push_back(v);
   setLevelsBelow(v);
   if (reparented) reparented->push_back(v);
+  return true;
 }
 
 std::size_t ParameterTree::rootOf(std::size_t node) const {

@@ -74,6 +74,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   constraint_translation_info_.clear();
   robust_weight_.clear();
   weight_cap_.clear();
+  outside_tree_.clear();
   arrival_chi2_.clear();
   preconditioned_weight_.clear();
   robust_.clear();
@@ -110,6 +111,7 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
   incident_[to_index_.back()].push_back(c);
   robust_weight_.push_back(1.0);
   weight_cap_.push_back(1.0);
+  outside_tree_.push_back(0);
   arrival_chi2_.push_back(-1.0);
   preconditioned_weight_.push_back(1.0);
   robust_.push_back(options_.robust.enabled() && isLoopClosure(k) ? 1 : 0);
@@ -301,7 +303,7 @@ void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
   topological_order_.push_back(v);
 }
 
-std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
+std::size_t TreeOptimizer::addConstraint(const Constraint& constraint, bool may_be_tree_edge) {
   const std::size_t c = graph_.addConstraint(planar_ ? projectToPlane(constraint) : constraint);
   registerConstraint(c);
   // A new loop closure is weighted before any pass moves the map for it, against the tree as it
@@ -310,20 +312,10 @@ std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
     setWeight(c, innovationWeight(c, &arrival_chi2_[c]));
   }
   std::vector<std::size_t> reparented;
-  tree_.addConstraint(graph_, c, &reparented);
+  outside_tree_[c] = tree_.addConstraint(graph_, c, &reparented, may_be_tree_edge) ? 0 : 1;
   affected_mark_.push_back(0);
   top_level_.push_back(0);
-  bool tree_reshaped = false;
-  for (std::size_t v : reparented) {
-    parameterFromPoses(v);
-    // A node attached by its very first constraint (a new keyframe) changes no other path; any
-    // other re-parenting changes the paths (top nodes, stiffness) of constraints through it.
-    if (!(reparented.size() == 1 && tree_.children(v).empty() && incident_[v].size() == 1)) tree_reshaped = true;
-  }
-  if (tree_reshaped) {
-    topological_order_ = tree_.topologicalOrder();
-    structure_dirty_ = true;
-  }
+  takeReparented(reparented);
   if (!structure_dirty_) {
     addToPreconditioner(c);
     const auto pos = std::upper_bound(order_.begin(), order_.end(), top_level_[c],
@@ -335,6 +327,32 @@ std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
   }
   new_constraints_.push_back(c);
   return c;
+}
+
+bool TreeOptimizer::takeReparented(const std::vector<std::size_t>& reparented) {
+  bool tree_reshaped = false;
+  for (std::size_t v : reparented) {
+    parameterFromPoses(v);
+    // A node attached by its very first constraint (a new keyframe) changes no other path; any
+    // other re-parenting changes the paths (top nodes, stiffness) of constraints through it.
+    if (!(reparented.size() == 1 && tree_.children(v).empty() && incident_[v].size() == 1)) tree_reshaped = true;
+  }
+  if (tree_reshaped) {
+    topological_order_ = tree_.topologicalOrder();
+    structure_dirty_ = true;
+  }
+  return tree_reshaped;
+}
+
+void TreeOptimizer::admitToTree(std::size_t c) {
+  if (c >= outside_tree_.size()) throw std::out_of_range("TreeOptimizer::admitToTree: no constraint " + std::to_string(c));
+  if (!outside_tree_[c]) return;
+  outside_tree_[c] = 0;
+  std::vector<std::size_t> reparented;
+  tree_.addConstraint(graph_, c, &reparented, true);
+  // Its path (top node, preconditioner share) is that of the new tree from the next refresh on.
+  if (!reparented.empty()) structure_dirty_ = true;
+  takeReparented(reparented);
 }
 
 std::vector<std::size_t> TreeOptimizer::sortedByTopLevel(std::vector<std::size_t> constraints) {

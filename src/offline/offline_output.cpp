@@ -162,6 +162,12 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
   writeOptimalityJson(out, s.run.optimality);
   out << "  \"loop_closures_held\": " << s.status.counters.loop_closures_held
       << ",\n  \"loop_closures_released\": " << s.status.counters.loop_closures_released << ",\n";
+  out << "  \"down_weighted_loop_closures\": [";
+  for (std::size_t i = 0; i < s.status.down_weighted.size(); ++i) {
+    const DownWeightedLoopClosure& d = s.status.down_weighted[i];
+    out << (i ? "," : "") << (i % 4 ? " " : "\n    ") << "[" << d.from << ", " << d.to << ", " << num(d.weight) << "]";
+  }
+  out << "\n  ],\n";
   out << "  \"loop_closures_down_weighted\": " << s.status.down_weighted.size()
       << ",\n  \"robust_width\": " << num(s.status.robust_width) << ",\n  \"robot_in_map\": [";
   for (std::size_t i = 0; i < s.run.robot_in_map.size(); ++i) {

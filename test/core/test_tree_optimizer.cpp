@@ -369,3 +369,38 @@ TEST(TreeOptimizerOnline, GrowingAfterSetGraphMatchesAFreshStart) {
     ASSERT_LT(relativePose(grown.graph().node(i).pose, fresh.graph().node(i).pose).angle(), 1e-9);
   }
 }
+
+TEST(TreeOptimizerOnline, ConstraintKeptOutOfTheTreeShapesItOnlyWhenAdmitted) {
+  // A chain 0..5 and a loop closure 1 -> 4: as a tree edge it makes 1 the parent of 4; kept out
+  // (a loop closure on hold) 4 keeps 3; admitted later, the tree and the passes are those of an
+  // optimiser that had it as a tree edge from the start.
+  TreeOptimizer kept, direct;
+  for (TreeOptimizer* opt : {&kept, &direct}) {
+    for (NodeId i = 0; i < 6; ++i) opt->addNode(i, Pose3::fromRollPitchYaw(1.1 * i, 0.05 * i, 0, 0, 0, 0.02 * i));
+    for (NodeId i = 0; i < 5; ++i) opt->addConstraint(between(i, i + 1, Pose3::fromRollPitchYaw(1, 0, 0, 0, 0, 0)));
+  }
+  const Constraint loop = between(1, 4, Pose3::fromRollPitchYaw(2.5, 0, 0, 0, 0, 0));
+  const std::size_t c = kept.addConstraint(loop, false);
+  direct.addConstraint(loop);
+  EXPECT_EQ(direct.tree().parent(4), 1u);
+  EXPECT_EQ(kept.tree().parent(4), 3u);
+  // The path of the kept-out constraint still runs through the tree, so passes can visit it.
+  kept.iterate();
+  EXPECT_EQ(kept.tree().parent(4), 3u);
+  kept.admitToTree(c);
+  kept.admitToTree(c);  // twice is once
+  for (std::size_t v = 0; v < 6; ++v) EXPECT_EQ(kept.tree().parent(v), direct.tree().parent(v)) << v;
+  // From the same poses and iteration, a pass of each gives the same poses: the same tree, the
+  // same preconditioner and visiting order after the admission.
+  std::vector<Pose3> poses;
+  for (const Node& n : direct.graph().nodes()) poses.push_back(n.pose);
+  kept.setPoses(poses);
+  kept.setIteration(direct.iteration());
+  const double before = g2oChi2(direct.graph());
+  kept.iterate();
+  direct.iterate();
+  for (std::size_t v = 0; v < 6; ++v)
+    EXPECT_LT(poseDistance(kept.graph().node(v).pose, direct.graph().node(v).pose), 1e-9) << v;
+  EXPECT_LT(g2oChi2(direct.graph()), before);
+  EXPECT_THROW(kept.admitToTree(99), std::out_of_range);
+}

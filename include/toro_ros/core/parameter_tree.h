@@ -30,7 +30,9 @@ class ParameterTree {
   void addNode(const PoseGraph& graph, std::size_t node_index);
   // With may_be_tree_edge false the constraint does not shape the tree (it becomes nobody's parent
   // link) unless it joins two components; then the result equals build() on the graph without it.
-  void addConstraint(const PoseGraph& graph, std::size_t constraint_index,
+  // Returns false when it was kept out that way (it may be added again later, shaping the tree;
+  // a full rebuild, which only graphs out of time order or joined components need, counts it).
+  bool addConstraint(const PoseGraph& graph, std::size_t constraint_index,
                      std::vector<std::size_t>* reparented = nullptr, bool may_be_tree_edge = true);
 
   std::size_t size() const { return parent_.size(); }

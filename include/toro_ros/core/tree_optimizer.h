@@ -101,7 +101,11 @@ class TreeOptimizer {
   // pose and the constraint are projected onto the plane first.
   void addNode(NodeId id, const Pose3& pose);
   // Validated like PoseGraph::addConstraint (throws GraphError); returns the constraint's index.
-  std::size_t addConstraint(const Constraint& constraint);
+  // With may_be_tree_edge false it does not shape the tree (nobody's parent link; see
+  // ParameterTree) until admitToTree: for a loop closure held out of the map (weight 0), whose
+  // tree edge would leave the paths through it without information.
+  std::size_t addConstraint(const Constraint& constraint, bool may_be_tree_edge = true);
+  void admitToTree(std::size_t c);
 
   // One full pass over all constraints; the learning rate decays with the iteration counter.
   // Afterwards no constraint counts as new for iterateAffected().
@@ -177,6 +181,9 @@ class TreeOptimizer {
   // registerGroupConstraint.
   void registerConstraint(std::size_t c);
   void setWeight(std::size_t c, double weight);
+  // Parameters of re-parented nodes from their poses; the structure is marked dirty when other
+  // paths changed.  True when it was.
+  bool takeReparented(const std::vector<std::size_t>& reparented);
   void adjustPreconditioner(std::size_t c, double rotation_delta, double translation_delta);
   // Preconditioner and visiting order, both from one walk over every constraint's path.
   void refreshStructure();
@@ -270,6 +277,7 @@ class TreeOptimizer {
   std::vector<double> constraint_translation_info_;
   std::vector<double> robust_weight_;  // per constraint, 1 unless robust_
   std::vector<double> weight_cap_;     // per constraint, the caller's bound on robust_weight_
+  std::vector<char> outside_tree_;     // per constraint: kept out of the tree's shape (admitToTree)
   std::vector<double> arrival_chi2_;   // per constraint, see arrivalChi2()
   std::vector<double> preconditioned_weight_;  // the weight whose share the preconditioner holds
   std::vector<char> robust_;           // per constraint: a loop closure weighted robustly
