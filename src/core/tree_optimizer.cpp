@@ -20,6 +20,10 @@ constexpr double kUnconstrained = 1e300;
 // preconditioner only needs to be roughly right; updating it walks the constraint's path).
 constexpr double kPreconditionerWeightTolerance = 0.1;
 
+// chi2() re-sums its per-constraint record after this many partial updates (each adds the
+// differences of the constraints it touched), so rounding in the running total stays ~1e-16 of it.
+constexpr std::size_t kChi2ResumEvery = 64;
+
 }  // namespace
 
 const char* parameterizationName(Parameterization p) {
@@ -98,6 +102,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   structure_dirty_ = true;
   refreshWeights();  // from the initial guess; the structure refresh then uses them
   new_constraints_.clear();
+  covered_new_ = 0;
   iteration_ = 0;
 }
 
@@ -116,6 +121,7 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
 }
 
 void TreeOptimizer::setWeight(std::size_t c, double weight) {
+  if (weight != robust_weight_[c]) changes_.constraint(c, graph_.numConstraints());
   robust_weight_[c] = weight;
   constraint_rotation_info_[c] = base_rotation_info_[c] * weight;
   constraint_translation_info_[c] = base_translation_info_[c] * weight;
@@ -135,7 +141,7 @@ void TreeOptimizer::adjustPreconditioner(std::size_t c, double rotation_delta, d
 }
 
 double TreeOptimizer::innovationWeight(std::size_t c, double* judged_chi2) {
-  const double plain = constraintChi2(graph_, c);
+  const double plain = toro::constraintChi2(graph_, c);
   if (!options_.robust_by_innovation) {
     *judged_chi2 = plain;
     return robustWeight(options_.robust, plain);
@@ -264,6 +270,7 @@ IterationStats TreeOptimizer::iterate() {
   const double learning_rate = 1.0 / (options_.gamma * static_cast<double>(iteration_));
   runPass(order_, learning_rate);
   new_constraints_.clear();  // a full pass has covered them
+  covered_new_ = 0;
   return IterationStats{iteration_, order_.size(), learning_rate};
 }
 
@@ -291,6 +298,10 @@ void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
 std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
   const std::size_t c = graph_.addConstraint(planar_ ? projectToPlane(constraint) : constraint);
   registerConstraint(c);
+  if (chi2_valid_) {
+    chi2_.push_back(toro::constraintChi2(graph_, c));
+    chi2_total_ += chi2_.back();
+  }
   // A new loop closure is weighted before any pass moves the map for it, against the tree as it
   // was before it arrived.
   if (robust_[c]) {
@@ -334,6 +345,11 @@ std::vector<std::size_t> TreeOptimizer::sortedByTopLevel(std::vector<std::size_t
 }
 
 IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteration) {
+  if (learning_rate_iteration <= 1) {
+    new_constraints_.erase(new_constraints_.begin(),
+                           new_constraints_.begin() + static_cast<std::ptrdiff_t>(covered_new_));
+  }
+  covered_new_ = new_constraints_.size();
   std::vector<std::size_t> affected;
   const auto mark = [&](std::size_t c) {
     if (!affected_mark_[c]) {
@@ -355,10 +371,62 @@ IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteratio
   affected = sortedByTopLevel(std::move(affected));
   const double learning_rate =
       1.0 / (options_.gamma * static_cast<double>(std::max<std::size_t>(1, learning_rate_iteration)));
-  runPass(affected, learning_rate);
+  runPass(affected, learning_rate, /*partial=*/true);
   return IterationStats{learning_rate_iteration, affected.size(), learning_rate};
 }
 
-void TreeOptimizer::clearAffected() { new_constraints_.clear(); }
+void TreeOptimizer::clearAffected() {
+  new_constraints_.clear();
+  covered_new_ = 0;
+}
+
+void TreeOptimizer::afterPosesMoved(const std::vector<std::size_t>& moved) {
+  const std::size_t n = graph_.numNodes(), m = graph_.numConstraints();
+  if (constraint_mark_.size() < m) constraint_mark_.resize(m, 0);
+  touched_constraints_.clear();
+  for (std::size_t v : moved) {
+    changes_.node(v, n);
+    for (std::size_t c : incident_[v]) {
+      if (constraint_mark_[c]) continue;
+      constraint_mark_[c] = 1;
+      touched_constraints_.push_back(c);
+    }
+  }
+  for (std::size_t c : touched_constraints_) {
+    constraint_mark_[c] = 0;
+    changes_.constraint(c, m);
+    if (!chi2_valid_) continue;
+    const double x = toro::constraintChi2(graph_, c);
+    chi2_total_ += x - chi2_[c];
+    chi2_[c] = x;
+  }
+  if (chi2_valid_ && ++chi2_updates_ >= kChi2ResumEvery) sumChi2();
+}
+
+void TreeOptimizer::sumChi2() {
+  // In constraint order, as toro::g2oChi2 sums: after a full recompute the two agree exactly.
+  double sum = 0.0;
+  for (double x : chi2_) sum += x;
+  chi2_total_ = sum;
+  chi2_updates_ = 0;
+}
+
+double TreeOptimizer::chi2() {
+  if (!chi2_valid_) {
+    chi2_.resize(graph_.numConstraints());
+    for (std::size_t c = 0; c < chi2_.size(); ++c) chi2_[c] = toro::constraintChi2(graph_, c);
+    chi2_valid_ = true;
+    sumChi2();
+  }
+  return chi2_total_;
+}
+
+double TreeOptimizer::constraintChi2(std::size_t c) {
+  if (c >= graph_.numConstraints()) {
+    throw std::out_of_range("TreeOptimizer::constraintChi2: no constraint " + std::to_string(c));
+  }
+  chi2();
+  return chi2_[c];
+}
 
 }  // namespace toro

@@ -310,7 +310,7 @@ void Pipeline::runAffectedPass() {
   ++revision_;
   ++counters_.optimization_passes;
   affected_pending_ = false;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  last_chi2_ = optimizer_.chi2();
 }
 
 void Pipeline::runFullPass() {
@@ -320,7 +320,7 @@ void Pipeline::runFullPass() {
   // A full pass covers everything added so far.
   optimizer_.clearAffected();
   affected_pending_ = false;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  last_chi2_ = optimizer_.chi2();
 }
 
 bool Pipeline::runScheduledOptimization() {
@@ -462,7 +462,7 @@ OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) 
   if (mode == "finish") return finish(iterations);
   r.iterations =
       iterations > 0 ? static_cast<int>(iterations) : options_.optimization.service_default_iterations;
-  r.chi2_before = toro::g2oChi2(optimizer_.graph());
+  r.chi2_before = optimizer_.chi2();
   optimizer_.setIteration(0);
   r.time_sec = timed([&] {
     // A loop closure removed by the re-check leaves the others to settle: passes again (bounded).
@@ -478,7 +478,7 @@ OptimizeResult Pipeline::optimize(unsigned iterations, const std::string& mode) 
   affected_pending_ = false;
   full_passes_left_ = 0;
   loop_closures_since_full_ = 0;
-  r.chi2_after = last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  r.chi2_after = last_chi2_ = optimizer_.chi2();
   last_optimization_sec_ = r.time_sec;
   r.success = true;
   r.message = std::to_string(r.iterations) + " full passes";
@@ -529,18 +529,10 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
   s->epoch = epoch_;
   const toro::PoseGraph& g = optimizer_.graph();
   const auto& records = keyframes_.records();
-  s->keyframes.reserve(records.size());
-  for (std::size_t i = 0; i < records.size(); ++i)
-    s->keyframes.push_back(SnapshotKeyframe{records[i].id, records[i].stamp, g.node(i).pose});
-  s->edges.reserve(g.numConstraints());
-  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
-    const toro::Constraint& k = g.constraints()[c];
-    const bool lc = is_loop_closure_[c];
-    const double weight = optimizer_.weights()[c];
-    s->edges.push_back(
-        SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0, weight});
-    if (lc && weight < toro::kRejectedWeight) ++s->down_weighted_loop_closures;
-  }
+  snapshot_builder_.update(optimizer_, records, is_loop_closure_);
+  s->keyframes = snapshot_builder_.shareKeyframes();
+  s->edges = snapshot_builder_.shareEdges();
+  s->down_weighted_loop_closures = snapshot_builder_.downWeighted();
   s->robust_width = options_.robust.enabled() ? robust_width_ : 0.0;
   for (const RejectedLoopClosure& r : rejected_)
     if (g.hasNode(r.constraint.from) && g.hasNode(r.constraint.to))

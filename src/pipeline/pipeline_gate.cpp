@@ -75,7 +75,7 @@ void Pipeline::rejectCandidate(double chi2) {
   for (std::size_t c = gate_constraint_ + 1; c < now.numConstraints(); ++c)
     optimizer_.addConstraint(now.constraints()[c]);
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(gate_constraint_));
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  last_chi2_ = optimizer_.chi2();
   if (loop_closures_since_full_ > 0) --loop_closures_since_full_;
   --counters_.loop_closures_applied;
   ++counters_.loop_closures_rejected;
@@ -125,7 +125,7 @@ bool Pipeline::readmitRejected() {
   if (warn_) warn_(std::to_string(readmitted) + " rejected loop closure(s) re-admitted: the map agrees with them now");
   affected_pending_ = true;
   loop_closures_since_full_ += readmitted;
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  last_chi2_ = optimizer_.chi2();
   ++revision_;
   return true;
 }
@@ -152,7 +152,7 @@ bool Pipeline::recheckLoopClosures() {
   const toro::Constraint removed = g.constraints()[worst];
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(worst));
   replaceGraph(without);
-  last_chi2_ = toro::g2oChi2(optimizer_.graph());
+  last_chi2_ = optimizer_.chi2();
   --counters_.loop_closures_applied;
   ++counters_.loop_closures_rejected;
   ++counters_.loop_closures_refused;
