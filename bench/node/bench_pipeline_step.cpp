@@ -4,7 +4,9 @@
 // and after each new keyframe (what the worker makes at every revision), the whole-graph chi2
 // alone, an autosave of the whole graph, a ~save_graph over it (check + save), the ~graph message
 // and ~path + ~graph_markers (built and serialised, as published at most every
-// visualizationPeriodSec).  No ROS master, no threads.  Usage: bench_pipeline_step [keyframes]
+// visualizationPeriodSec).  No ROS master, no threads.
+// Usage: bench_pipeline_step [keyframes] [keyframes per loop closure (100; run_node_bench.sh at
+// 250 Hz makes one every 250)]
 #include <unistd.h>
 
 #include <algorithm>
@@ -44,6 +46,7 @@ nav_msgs::Odometry odometry(const ros::Time& t, const toro::Pose3& pose) {
 int main(int argc, char** argv) {
   const int total = argc > 1 ? std::stoi(argv[1]) : 20000;
   const int lap = 500;
+  const int loop_every = argc > 2 ? std::stoi(argv[2]) : 100;
   PipelineOptions o;
   o.keyframer.distance_m = 0.005;  // every message a keyframe, as in run_node_bench.sh
   o.optimization.full_iterations = 0;
@@ -67,7 +70,7 @@ int main(int argc, char** argv) {
     }
     truths.push_back(truth);
     stamps.push_back(t);
-    if (i >= lap && i % 100 == 0) {
+    if (i >= lap && i % loop_every == 0) {
       LoopClosure lc;
       lc.id_from = lc.id_to = -1;
       lc.stamp_from = stamps[i - lap];

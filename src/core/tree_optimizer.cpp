@@ -24,6 +24,13 @@ constexpr double kPreconditionerWeightTolerance = 0.1;
 // differences of the constraints it touched), so rounding in the running total stays ~1e-16 of it.
 constexpr std::size_t kChi2ResumEvery = 64;
 
+// A constraint added with a chi2 at most this (rounding: a new keyframe placed by its odometry)
+// is satisfied: its update would move nothing, so it does not make the constraints along its tree
+// path "affected".  Counting it did: after a loop closure re-parents a keyframe, the odometry
+// beside it has a tree path across the map, and every constraint along that path was visited
+// again at each affected pass (the pass grew with the number of loops).
+constexpr double kSatisfiedChi2 = 1e-12;
+
 }  // namespace
 
 const char* parameterizationName(Parameterization p) {
@@ -89,6 +96,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   affected_mark_.assign(graph_.numConstraints(), 0);
   top_level_.assign(graph_.numConstraints(), 0);  // per constraint, like the vectors above
   topological_order_ = tree_.topologicalOrder();
+  topological_dirty_ = false;
   for (std::size_t v = 0; v < n; ++v) appendParameter(Pose3());
   if (guess == InitialGuess::kFromGraph) {
     parametersFromPoses();
@@ -292,15 +300,16 @@ void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
   rotation_weight_.push_back(0.0);
   translation_weight_.push_back(0.0);
   inverse_weight_.push_back(InverseStiffness{kUnconstrained, kUnconstrained});
-  topological_order_.push_back(v);
+  if (!topological_dirty_) topological_order_.push_back(v);
 }
 
 std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
   const std::size_t c = graph_.addConstraint(planar_ ? projectToPlane(constraint) : constraint);
   registerConstraint(c);
+  const double added_chi2 = toro::constraintChi2(graph_, c);
   if (chi2_valid_) {
-    chi2_.push_back(toro::constraintChi2(graph_, c));
-    chi2_total_ += chi2_.back();
+    chi2_.push_back(added_chi2);
+    chi2_total_ += added_chi2;
   }
   // A new loop closure is weighted before any pass moves the map for it, against the tree as it
   // was before it arrived.
@@ -319,7 +328,7 @@ std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
     if (!(reparented.size() == 1 && tree_.children(v).empty() && incident_[v].size() == 1)) tree_reshaped = true;
   }
   if (tree_reshaped) {
-    topological_order_ = tree_.topologicalOrder();
+    topological_dirty_ = true;
     structure_dirty_ = true;
   }
   if (!structure_dirty_) {
@@ -331,7 +340,7 @@ std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
     // Keep the stiffness of the new path up to date until the next full refresh.
     addToPreconditioner(c);
   }
-  new_constraints_.push_back(c);
+  if (!(added_chi2 <= kSatisfiedChi2)) new_constraints_.push_back(c);
   return c;
 }
 
@@ -384,10 +393,15 @@ void TreeOptimizer::afterPosesMoved(const std::vector<std::size_t>& moved) {
   const std::size_t n = graph_.numNodes(), m = graph_.numConstraints();
   if (constraint_mark_.size() < m) constraint_mark_.resize(m, 0);
   touched_constraints_.clear();
+  // A constraint whose ends moved with one region (moved_mark_ 2: walked) kept its relative pose,
+  // so its chi2 (up to rounding); only those between regions, or to a node that did not move, are
+  // evaluated again.  That is the path nodes' constraints, not every moved node's.
   for (std::size_t v : moved) {
     changes_.node(v, n);
     for (std::size_t c : incident_[v]) {
       if (constraint_mark_[c]) continue;
+      const std::size_t other = from_index_[c] == v ? to_index_[c] : from_index_[c];
+      if (moved_mark_[other] == 2 && region_[other] == region_[v]) continue;
       constraint_mark_[c] = 1;
       touched_constraints_.push_back(c);
     }

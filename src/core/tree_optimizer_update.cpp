@@ -253,6 +253,10 @@ inline void TreeOptimizer::recomputePosesIn() {
   // Every pose may move: the chi2 record and the journal start over.
   chi2_valid_ = false;
   changes_.markAll();
+  if (topological_dirty_) {
+    topological_order_ = tree_.topologicalOrder();
+    topological_dirty_ = false;
+  }
   for (std::size_t v : topological_order_) recomputePoseIn<G>(v);
 }
 
@@ -264,6 +268,7 @@ void TreeOptimizer::recomputeMovedPosesIn() {
   std::sort(moved_roots_.begin(), moved_roots_.end(),
             [&](std::size_t a, std::size_t b) { return tree_.level(a) < tree_.level(b); });
   moved_.clear();
+  if (region_.size() < graph_.numNodes()) region_.resize(graph_.numNodes(), kNone);
   for (std::size_t root : moved_roots_) {
     if (moved_mark_[root] == 2) continue;
     subtree_stack_.assign(1, root);
@@ -271,15 +276,17 @@ void TreeOptimizer::recomputeMovedPosesIn() {
       const std::size_t v = subtree_stack_.back();
       subtree_stack_.pop_back();
       recomputePoseIn<G>(v);
+      // A changed node starts a region; the others move with their parent's.
+      region_[v] = moved_mark_[v] == 1 ? v : region_[tree_.parent(v)];
       moved_mark_[v] = 2;
       moved_.push_back(v);
       for (std::size_t child : tree_.children(v)) subtree_stack_.push_back(child);
     }
   }
+  afterPosesMoved(moved_);  // reads the marks and regions of the walk
   for (std::size_t v : moved_roots_) moved_mark_[v] = 0;
   for (std::size_t v : moved_) moved_mark_[v] = 0;
   moved_roots_.clear();
-  afterPosesMoved(moved_);
 }
 
 // ---- the update of one constraint ---------------------------------------------------------------

@@ -107,7 +107,8 @@ class TreeOptimizer {
   // One full pass over all constraints; the learning rate decays with the iteration counter.
   // Afterwards no constraint counts as new for iterateAffected().
   IterationStats iterate();
-  // One pass over the constraints affected by what was added (the new constraints and every
+  // One pass over the constraints affected by what was added (the new constraints that were not
+  // satisfied when added, e.g. loop closures but not a new keyframe's odometry, and every
   // constraint touching a node on their tree paths), with the learning rate of the given iteration
   // index.  Does not advance the iteration counter; call it repeatedly with growing indices to
   // settle a new loop closure.  "Added" counts from the last full pass, clearAffected(), or the
@@ -297,6 +298,9 @@ class TreeOptimizer {
   std::vector<int> top_level_;           // level of each constraint's top node (refreshStructure)
   bool structure_dirty_ = true;          // tree changed since refreshStructure()
   std::vector<std::size_t> topological_order_;
+  // The tree was re-shaped (a loop closure re-parented a node) since topological_order_ was made:
+  // it is remade when a full recompute needs it, not at every loop closure (it is O(nodes)).
+  bool topological_dirty_ = false;
   std::vector<std::size_t> new_constraints_;
   std::size_t covered_new_ = 0;  // new_constraints_[0, covered_new_) had an affected pass
   std::vector<std::vector<std::size_t>> incident_;  // constraints per node
@@ -314,6 +318,9 @@ class TreeOptimizer {
   bool record_moved_ = false;
   std::vector<std::size_t> moved_roots_, moved_, subtree_stack_, touched_constraints_;
   std::vector<char> moved_mark_, constraint_mark_;
+  // During the walk: the changed node whose subtree gave each walked node its new pose.  Nodes of
+  // one region moved rigidly together, so only constraints between regions change their chi2.
+  std::vector<std::size_t> region_;
   // g2o chi2 per constraint and their sum (chi2()); chi2_valid_ false: to be computed in full.
   // The sum is updated by differences and re-summed every kChi2ResumEvery partial updates, so
   // rounding cannot drift far from the exact sum.
