@@ -24,13 +24,6 @@ constexpr double kPreconditionerWeightTolerance = 0.1;
 // differences of the constraints it touched), so rounding in the running total stays ~1e-16 of it.
 constexpr std::size_t kChi2ResumEvery = 64;
 
-// A constraint added with a chi2 at most this (rounding: a new keyframe placed by its odometry)
-// is satisfied: its update would move nothing, so it does not make the constraints along its tree
-// path "affected".  Counting it did: after a loop closure re-parents a keyframe, the odometry
-// beside it has a tree path across the map, and every constraint along that path was visited
-// again at each affected pass (the pass grew with the number of loops).
-constexpr double kSatisfiedChi2 = 1e-12;
-
 }  // namespace
 
 const char* parameterizationName(Parameterization p) {
@@ -306,10 +299,9 @@ void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
 std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
   const std::size_t c = graph_.addConstraint(planar_ ? projectToPlane(constraint) : constraint);
   registerConstraint(c);
-  const double added_chi2 = toro::constraintChi2(graph_, c);
   if (chi2_valid_) {
-    chi2_.push_back(added_chi2);
-    chi2_total_ += added_chi2;
+    chi2_.push_back(toro::constraintChi2(graph_, c));
+    chi2_total_ += chi2_.back();
   }
   // A new loop closure is weighted before any pass moves the map for it, against the tree as it
   // was before it arrived.
@@ -340,7 +332,7 @@ std::size_t TreeOptimizer::addConstraint(const Constraint& constraint) {
     // Keep the stiffness of the new path up to date until the next full refresh.
     addToPreconditioner(c);
   }
-  if (!(added_chi2 <= kSatisfiedChi2)) new_constraints_.push_back(c);
+  new_constraints_.push_back(c);
   return c;
 }
 

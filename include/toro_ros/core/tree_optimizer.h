@@ -107,8 +107,7 @@ class TreeOptimizer {
   // One full pass over all constraints; the learning rate decays with the iteration counter.
   // Afterwards no constraint counts as new for iterateAffected().
   IterationStats iterate();
-  // One pass over the constraints affected by what was added (the new constraints that were not
-  // satisfied when added, e.g. loop closures but not a new keyframe's odometry, and every
+  // One pass over the constraints affected by what was added (the new constraints and every
   // constraint touching a node on their tree paths), with the learning rate of the given iteration
   // index.  Does not advance the iteration counter; call it repeatedly with growing indices to
   // settle a new loop closure.  "Added" counts from the last full pass, clearAffected(), or the
