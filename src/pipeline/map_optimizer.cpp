@@ -54,9 +54,9 @@ constexpr double kBackgroundRelativeDecrease = 1e-5;
 // closures replayed (bench/robust_offline_results.md): intel at 0.999 let one wrong pair through
 // (6.4 m RMSE), at 0.99 none (0.006 m, clean 0.003 m); kitti_00 the same as clean either way.
 constexpr double kSupportConfidence = 0.99;
-// The support threshold adapts to the agreeing pairs' chi2 once this many are known, and only
-// when their median is this many times below the chi-square median (real residuals are not
-// exactly chi-square: heavier tails, correlated noise).
+// Pairs count as support, and the support threshold adapts to the tested pairs' chi2, once this
+// many were tested; it narrows only when their median is kSupportLenience times below the
+// chi-square median (real residuals are not exactly chi-square: heavier tails, correlated noise).
 constexpr std::size_t kMinPairsToAdaptSupport = 10;
 constexpr double kSupportLenience = 4.0;
 constexpr std::size_t kPairSample = 1000;
@@ -238,13 +238,14 @@ std::string MapOptimizer::addLoopClosure(const toro::Constraint& loop_closure, c
 double MapOptimizer::supportThreshold() const {
   const double dof = planar_ ? 3.0 : 6.0;
   const double quantile = toro::chiSquareQuantile(kSupportConfidence, dof);
-  if (agreeing_pair_chi2_.size() < kMinPairsToAdaptSupport) return quantile;
+  if (tested_pair_chi2_.size() < kMinPairsToAdaptSupport) return quantile;
   // Senders whose covariances are far too large (parking-garage.g2o: residuals ~1e-4 of the
   // declared ones) make every cycle look consistent, wrong ones too: the threshold narrows by the
-  // ratio of the agreeing pairs' median to the chi-square median, never widens.  Stable: the
-  // pairs it keeps are cut at the 0.99 quantile of their own distribution, which leaves the
-  // median nearly as it is (and kSupportLenience covers the rest).
-  std::vector<double> sample = agreeing_pair_chi2_;
+  // ratio of the tested pairs' median to the chi-square median, never widens.  All tested pairs,
+  // not only those that agreed: a statistic of what passed would narrow itself.  Right loop
+  // closures come in runs (each tests several neighbours), so right pairs make the median unless
+  // wrong ones outnumber them nearby; a median raised by wrong ones only narrows less.
+  std::vector<double> sample = tested_pair_chi2_;
   const auto middle = sample.begin() + static_cast<std::ptrdiff_t>(sample.size() / 2);
   std::nth_element(sample.begin(), middle, sample.end());
   const double ratio = kSupportLenience * *middle / toro::chiSquareQuantile(0.5, dof);
@@ -289,11 +290,14 @@ bool MapOptimizer::hasConsistentPartner(std::size_t c, bool release_held) {
       if (!near(other, b)) continue;
       if (std::minmax(u, other) == std::minmax(a, b)) continue;  // the same two poses: no second view
       const double chi2 = toro::loopClosurePairChi2(g, steps, c, j, planar_);
-      if (!(chi2 >= 0.0 && chi2 <= threshold)) continue;
-      // The newest kPairSample agreeing cycles (a ring): the threshold's statistic.
-      if (agreeing_pair_chi2_.size() < kPairSample) agreeing_pair_chi2_.push_back(chi2);
-      else agreeing_pair_chi2_[pairs_seen_ % kPairSample] = chi2;
-      ++pairs_seen_;
+      if (!(chi2 >= 0.0)) continue;
+      // The newest kPairSample tested cycles (a ring): the threshold's statistic.
+      if (tested_pair_chi2_.size() < kPairSample) tested_pair_chi2_.push_back(chi2);
+      else tested_pair_chi2_[pairs_tested_ % kPairSample] = chi2;
+      ++pairs_tested_;
+      // No pair counts before the threshold knows the sender's scale (a few loop closures of the
+      // first revisit wait for it).
+      if (pairs_tested_ < kMinPairsToAdaptSupport || !(chi2 <= threshold)) continue;
       found = true;
       if (!release_held) return true;
       if (optimizer_.weightCap(j) < 1.0) release(j);
@@ -322,13 +326,21 @@ int MapOptimizer::odometryVerdict(std::size_t c) {
 
 void MapOptimizer::judgeSupport(std::size_t c) {
   if (!supportEnabled()) return;
+  const bool scale_was_known = pairs_tested_ >= kMinPairsToAdaptSupport;
   // Ends a few keyframes apart: the odometry between them decides (a short chain is precise).
   const int verdict = odometryVerdict(c);
-  if (verdict > 0) return;
   // A neighbour is looked for even when the map agrees: a held one it agrees with is released.
-  if (verdict == 0 && (hasConsistentPartner(c, true) || agreesWithMap(c))) return;
-  optimizer_.setWeightCap(c, 0.0);
-  ++counters_->loop_closures_held;
+  const bool supported = verdict > 0 || (verdict == 0 && (hasConsistentPartner(c, true) || agreesWithMap(c)));
+  if (!supported) {
+    optimizer_.setWeightCap(c, 0.0);
+    ++counters_->loop_closures_held;
+  }
+  if (scale_was_known || pairs_tested_ < kMinPairsToAdaptSupport) return;
+  // The threshold has just learnt the sender's scale: the loop closures held while it could not
+  // judge pairs (the first revisit) are judged again.
+  for (std::size_t h = 0; h < is_loop_closure_.size(); ++h)
+    if (is_loop_closure_[h] && optimizer_.weightCap(h) < 1.0 && odometryVerdict(h) == 0 && hasConsistentPartner(h, true))
+      release(h);
 }
 
 bool MapOptimizer::releaseAgreed() {
@@ -436,6 +448,8 @@ FinishJob MapOptimizer::makeFinishJob(unsigned iterations) const {
 }
 
 OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
+  updateChi2();
+  const double chi2_before = last_chi2_;
   const FinishOutcome outcome = runFinishJob(makeFinishJob(iterations));
   OptimizeResult r;
   if (!outcome.success) {
@@ -450,8 +464,10 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
   releaseAgreed();
   updateChi2();
   ++revision_;
-  r.chi2_before = outcome.chi2_before;
-  r.chi2_after = outcome.chi2_after;
+  // Reported as the map's g2o chi2 (every constraint at full weight, as ~get_status says); the
+  // finish itself minimised the weighted one (finished_chi2_).
+  r.chi2_before = chi2_before;
+  r.chi2_after = last_chi2_;
   r.time_sec = last_optimization_sec_ = outcome.seconds;
   r.iterations = static_cast<int>(outcome.iterations);
   r.message = std::to_string(outcome.iterations) + " Levenberg-Marquardt iterations";
@@ -481,6 +497,8 @@ OptimizeResult MapOptimizer::optimize(unsigned iterations, bool finish) {
     }
   });
   optimizer_.clearAffected();
+  // Held loop closures the map now agrees with count for what follows (the finish below).
+  releaseAgreed();
   ++revision_;
   counters_->optimization_passes += r.iterations;
   updateChi2();
@@ -647,8 +665,8 @@ void MapOptimizer::clear() {
   full_passes_left_ = 0;
   last_chi2_ = weighted_chi2_ = kNaN;
   odometry_steps_.clear();
-  agreeing_pair_chi2_.clear();
-  pairs_seen_ = 0;
+  tested_pair_chi2_.clear();
+  pairs_tested_ = 0;
   finish_due_ = false;
   last_finish_stamp_ = ros::Time();
   finished_chi2_ = kNaN;

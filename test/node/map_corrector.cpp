@@ -84,7 +84,7 @@ TEST(MapCorrector, LoopClosureCorrectsMapToOdomOnTf) {
   ASSERT_GT(raw_error, 1.0);
   for (const LoopClosure& lc : toro_ros::testing::revisitLoopClosures(scenario, 0, scenario.odometry.size() - 1))
     client->publishLoopClosure(lc);
-  ASSERT_TRUE(Client::waitFor([&] { return client->status().loop_closures_applied == 2; }));
+  ASSERT_TRUE(Client::waitFor([&] { return client->status().loop_closures_applied == 5; }));
   double corrected = raw_error;
   EXPECT_TRUE(client->waitObserved([&](const Observed& o) {
     corrected = newestError(o.map_T_odom->transform);
@@ -98,7 +98,7 @@ TEST(MapCorrector, PathAndMarkersShowTheCorrectedGraph) {
   EXPECT_TRUE(client->waitObserved([&](const Observed& o) {
     if (!o.path || o.path->poses.size() != keyframes || !o.markers) return false;
     for (const auto& m : o.markers->markers)
-      if (m.ns == "loop_closures" && m.points.size() == 4) return true;  // the revisit's two lines
+      if (m.ns == "loop_closures" && m.points.size() == 10) return true;  // the revisit's five lines
     return false;
   }));
   std::lock_guard<std::mutex> lock(client->observed.mutex);

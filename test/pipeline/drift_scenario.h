@@ -108,12 +108,15 @@ inline LoopClosure trueLoopClosure(const DriftScenario& s, std::size_t i, std::s
   return lc;
 }
 
-// A revisit as a place recogniser reports it: the loop closure (i, j) and its neighbour
-// (i + step, j - step), samples half a metre along at 1 m/s and 0.1 s (the default options hold a
-// lone loop closure that would bend the map until a second one agrees with it).
+// A revisit as a place recogniser reports it: the loop closures (i + k step, j - k step), k = 0 ..
+// count - 1, samples half a metre apart at 1 m/s and 0.1 s.  The default options hold loop closures
+// that would bend the map until others agree, and count agreement only once 10 pairs were tested
+// (the sender's covariance scale): five loop closures of a first revisit make 10 pairs.
 inline std::vector<LoopClosure> revisitLoopClosures(const DriftScenario& s, std::size_t i, std::size_t j,
-                                                    std::size_t step = 5) {
-  return {trueLoopClosure(s, i, j), trueLoopClosure(s, i + step, j - step)};
+                                                    std::size_t count = 5, std::size_t step = 5) {
+  std::vector<LoopClosure> out;
+  for (std::size_t k = 0; k < count; ++k) out.push_back(trueLoopClosure(s, i + k * step, j - k * step));
+  return out;
 }
 
 }  // namespace testing

@@ -230,8 +230,8 @@ class MapOptimizer {
   // set-aside weight left out): what a finish minimises, so what the tolerance compares.
   double weighted_chi2_;
   std::vector<std::size_t> odometry_steps_;  // per node: toro::odometrySteps, grown lazily
-  std::vector<double> agreeing_pair_chi2_;   // cycles of loop closures that agreed (support)
-  std::size_t pairs_seen_ = 0;
+  std::vector<double> tested_pair_chi2_;     // cycles of loop closures tested (support)
+  std::size_t pairs_tested_ = 0;
   double last_optimization_sec_ = 0.0;
   std::uint64_t revision_ = 0;
   // Schedule state (message time, never wall time).
