@@ -1,9 +1,12 @@
 // In-process profile of the worker's per-loop-closure work at 20,000 keyframes, on the graph of
 // bench_node_latency (a 500-keyframe circuit, a loop closure every 100 keyframes to one lap back):
-// the affected TORO pass (+ the g2o chi2 the pipeline computes after it), a Snapshot, and the chi2
-// alone, an autosave of the whole graph, a ~save_graph over it (check + save), and the ~graph
-// message (built and serialised, as the worker does at most visualization_rate_hz while it has
-// subscribers).  No ROS master, no threads.  Usage: bench_pipeline_step [keyframes]
+// the affected TORO pass (+ the g2o chi2 the pipeline computes after it), the Snapshot after it
+// and after each new keyframe (what the worker makes at every revision), the whole-graph chi2
+// alone, an autosave of the whole graph, a ~save_graph over it (check + save), the ~graph message
+// and ~path + ~graph_markers (built and serialised, as published at most every
+// visualizationPeriodSec).  No ROS master, no threads.
+// Usage: bench_pipeline_step [keyframes] [keyframes per loop closure (100; run_node_bench.sh at
+// 250 Hz makes one every 250)]
 #include <unistd.h>
 
 #include <algorithm>
@@ -21,6 +24,7 @@
 #include "toro_ros/pipeline/graph_directory.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 #include "toro_ros/pipeline/pipeline.h"
+#include "toro_ros/pipeline/visualization.h"
 
 using namespace toro_ros;
 
@@ -42,6 +46,7 @@ nav_msgs::Odometry odometry(const ros::Time& t, const toro::Pose3& pose) {
 int main(int argc, char** argv) {
   const int total = argc > 1 ? std::stoi(argv[1]) : 20000;
   const int lap = 500;
+  const int loop_every = argc > 2 ? std::stoi(argv[2]) : 100;
   PipelineOptions o;
   o.keyframer.distance_m = 0.005;  // every message a keyframe, as in run_node_bench.sh
   o.optimization.full_iterations = 0;
@@ -49,14 +54,23 @@ int main(int argc, char** argv) {
   toro::Pose3 truth, odom;
   std::vector<toro::Pose3> truths;
   std::vector<ros::Time> stamps;
-  double affected_ms = 0;
-  int affected_n = 0;
+  double affected_ms = 0, after_pass_snapshot_ms = 0, keyframe_snapshot_ms = 0;
+  int affected_n = 0, keyframe_n = 0;
   for (int i = 0; i < total; ++i) {
     const ros::Time t(100 + 0.01 * i);
     p.handleOdometry(odometry(t, odom));
+    {
+      // The worker makes a snapshot at every revision: here every message is a keyframe.
+      const auto t0 = std::chrono::steady_clock::now();
+      p.makeSnapshot();
+      if (i >= total * 3 / 4) {
+        keyframe_snapshot_ms += msSince(t0);
+        ++keyframe_n;
+      }
+    }
     truths.push_back(truth);
     stamps.push_back(t);
-    if (i >= lap && i % 100 == 0) {
+    if (i >= lap && i % loop_every == 0) {
       LoopClosure lc;
       lc.id_from = lc.id_to = -1;
       lc.stamp_from = stamps[i - lap];
@@ -66,8 +80,12 @@ int main(int argc, char** argv) {
       p.handleLoopClosure(lc);
       const auto t0 = std::chrono::steady_clock::now();
       p.runScheduledOptimization();
+      const double pass_ms = msSince(t0);
+      const auto t1 = std::chrono::steady_clock::now();
+      p.makeSnapshot();
       if (i >= total * 3 / 4) {
-        affected_ms += msSince(t0);
+        affected_ms += pass_ms;
+        after_pass_snapshot_ms += msSince(t1);
         ++affected_n;
       }
     }
@@ -76,9 +94,6 @@ int main(int argc, char** argv) {
   }
   constexpr int kRepeats = 20;
   auto t0 = std::chrono::steady_clock::now();
-  for (int k = 0; k < kRepeats; ++k) p.makeSnapshot();
-  const double snapshot_ms = msSince(t0) / kRepeats;
-  t0 = std::chrono::steady_clock::now();
   double sink = 0;
   for (int k = 0; k < kRepeats; ++k) sink += toro::g2oChi2(p.graph());
   const double chi2_ms = msSince(t0) / kRepeats;
@@ -126,11 +141,30 @@ int main(int argc, char** argv) {
     byte_sink += buffer[graph_bytes / 2];
   }
   const double graph_ms = msSince(t0) / kRepeats;
+  // ~path and ~graph_markers from the snapshot, serialised (both latched: roscpp serialises them
+  // at every publish).
+  std::uint32_t visualization_bytes = 0;
+  t0 = std::chrono::steady_clock::now();
+  for (int k = 0; k < kRepeats; ++k) {
+    const nav_msgs::Path path = pathFromSnapshot(*snapshot, "map", ros::Time(1));
+    const visualization_msgs::MarkerArray markers =
+        markersFromSnapshot(*snapshot, "map", ros::Time(1), MarkerOptions{}, false);
+    visualization_bytes = ros::serialization::serializationLength(path) + ros::serialization::serializationLength(markers);
+    std::vector<std::uint8_t> buffer(visualization_bytes);
+    ros::serialization::OStream stream(buffer.data(), visualization_bytes);
+    ros::serialization::serialize(stream, path);
+    ros::serialization::serialize(stream, markers);
+    byte_sink += buffer[visualization_bytes / 2];
+  }
+  const double visualization_ms = msSince(t0) / kRepeats;
   std::printf("keyframes %zu, constraints %zu (chi2 %.3g)\n", p.keyframes().size(),
               p.graph().numConstraints(), sink / kRepeats);
   std::printf("affected pass + chi2, mean over the last quarter's loop closures: %.2f ms (n=%d)\n",
               affected_ms / affected_n, affected_n);
-  std::printf("makeSnapshot: %.2f ms   g2oChi2 alone: %.2f ms\n", snapshot_ms, chi2_ms);
+  std::printf("makeSnapshot after that pass: %.3f ms, after a new keyframe: %.3f ms (mean of %d)   g2oChi2 alone: %.2f ms\n",
+              after_pass_snapshot_ms / affected_n, keyframe_snapshot_ms / keyframe_n, keyframe_n, chi2_ms);
+  std::printf("~path + ~graph_markers: build + serialise %.2f ms, %u bytes (%.3f ms per 1,000 keyframes)\n",
+              visualization_ms, visualization_bytes, visualization_ms * 1e3 / static_cast<double>(p.keyframes().size()));
   std::printf("~graph message: build + serialise %.2f ms, %u bytes (%.0f per keyframe) [%u]\n", graph_ms, graph_bytes,
               static_cast<double>(graph_bytes) / static_cast<double>(p.keyframes().size()), byte_sink % 2);
   const auto median = [](const char* what, const std::vector<double>& ms) {

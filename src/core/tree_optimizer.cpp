@@ -20,6 +20,10 @@ constexpr double kUnconstrained = 1e300;
 // preconditioner only needs to be roughly right; updating it walks the constraint's path).
 constexpr double kPreconditionerWeightTolerance = 0.1;
 
+// chi2() re-sums its per-constraint record after this many partial updates (each adds the
+// differences of the constraints it touched), so rounding in the running total stays ~1e-16 of it.
+constexpr std::size_t kChi2ResumEvery = 64;
+
 }  // namespace
 
 const char* parameterizationName(Parameterization p) {
@@ -39,6 +43,8 @@ std::string TreeOptimizerOptions::validate() const {
   if (!(translation_gamma > 0.0) || !std::isfinite(translation_gamma)) {
     return "translation_gamma must be a positive finite number";
   }
+  if (!(weighted_chi2_set_aside >= 0.0 && weighted_chi2_set_aside < 1.0))
+    return "weighted_chi2_set_aside must be in [0, 1)";
   return robust.validate();
 }
 
@@ -62,6 +68,7 @@ void TreeOptimizer::resetGraph(const PoseGraph& graph) {
 }
 
 void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
+  chi2_valid_ = false;  // another graph: its record is computed when asked
   resetGraph(graph);
   tree_.build(graph_);
   const std::size_t n = graph_.numNodes();
@@ -87,6 +94,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   affected_mark_.assign(graph_.numConstraints(), 0);
   top_level_.assign(graph_.numConstraints(), 0);  // per constraint, like the vectors above
   topological_order_ = tree_.topologicalOrder();
+  topological_dirty_ = false;
   for (std::size_t v = 0; v < n; ++v) appendParameter(Pose3());
   if (guess == InitialGuess::kFromGraph) {
     parametersFromPoses();
@@ -100,6 +108,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   structure_dirty_ = true;
   refreshWeights();  // from the initial guess; the structure refresh then uses them
   new_constraints_.clear();
+  covered_new_ = 0;
   iteration_ = 0;
 }
 
@@ -120,7 +129,12 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
 }
 
 void TreeOptimizer::setWeight(std::size_t c, double weight) {
-  robust_weight_[c] = weight;
+  if (weight != robust_weight_[c]) {
+    changes_.constraint(c, graph_.numConstraints());
+    if (chi2_valid_) weighted_chi2_total_ -= weightedShare(c, chi2_[c]);
+    robust_weight_[c] = weight;
+    if (chi2_valid_) weighted_chi2_total_ += weightedShare(c, chi2_[c]);
+  }
   constraint_rotation_info_[c] = base_rotation_info_[c] * weight;
   constraint_translation_info_[c] = base_translation_info_[c] * weight;
 }
@@ -150,7 +164,7 @@ double TreeOptimizer::innovationWeight(std::size_t c, double* judged_chi2) {
 }
 
 double TreeOptimizer::kernelWeight(std::size_t c, double* judged_chi2) {
-  const double plain = constraintChi2(graph_, c);
+  const double plain = toro::constraintChi2(graph_, c);
   if (!options_.robust_by_innovation) {
     *judged_chi2 = plain;
     return robustWeight(options_.robust, plain);
@@ -279,6 +293,7 @@ IterationStats TreeOptimizer::iterate() {
   const double learning_rate = 1.0 / (options_.gamma * static_cast<double>(iteration_));
   runPass(order_, learning_rate);
   new_constraints_.clear();  // a full pass has covered them
+  covered_new_ = 0;
   return IterationStats{iteration_, order_.size(), learning_rate};
 }
 
@@ -300,12 +315,18 @@ void TreeOptimizer::addNode(NodeId id, const Pose3& pose) {
   rotation_weight_.push_back(0.0);
   translation_weight_.push_back(0.0);
   inverse_weight_.push_back(InverseStiffness{kUnconstrained, kUnconstrained});
-  topological_order_.push_back(v);
+  if (!topological_dirty_) topological_order_.push_back(v);
 }
 
 std::size_t TreeOptimizer::addConstraint(const Constraint& constraint, bool may_be_tree_edge) {
   const std::size_t c = graph_.addConstraint(planar_ ? projectToPlane(constraint) : constraint);
   registerConstraint(c);
+  if (chi2_valid_) {
+    // At weight 1 until the robust weight below replaces it (setWeight moves its share).
+    chi2_.push_back(toro::constraintChi2(graph_, c));
+    chi2_total_ += chi2_.back();
+    weighted_chi2_total_ += weightedShare(c, chi2_.back());
+  }
   // A new loop closure is weighted before any pass moves the map for it, against the tree as it
   // was before it arrived.
   if (robust_[c]) {
@@ -338,7 +359,7 @@ bool TreeOptimizer::takeReparented(const std::vector<std::size_t>& reparented) {
     if (!(reparented.size() == 1 && tree_.children(v).empty() && incident_[v].size() == 1)) tree_reshaped = true;
   }
   if (tree_reshaped) {
-    topological_order_ = tree_.topologicalOrder();
+    topological_dirty_ = true;
     structure_dirty_ = true;
   }
   return tree_reshaped;
@@ -365,6 +386,11 @@ std::vector<std::size_t> TreeOptimizer::sortedByTopLevel(std::vector<std::size_t
 }
 
 IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteration) {
+  if (learning_rate_iteration <= 1) {
+    new_constraints_.erase(new_constraints_.begin(),
+                           new_constraints_.begin() + static_cast<std::ptrdiff_t>(covered_new_));
+  }
+  covered_new_ = new_constraints_.size();
   std::vector<std::size_t> affected;
   const auto mark = [&](std::size_t c) {
     if (!affected_mark_[c]) {
@@ -386,11 +412,78 @@ IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteratio
   affected = sortedByTopLevel(std::move(affected));
   const double learning_rate =
       1.0 / (options_.gamma * static_cast<double>(std::max<std::size_t>(1, learning_rate_iteration)));
-  runPass(affected, learning_rate);
+  runPass(affected, learning_rate, /*partial=*/true);
   return IterationStats{learning_rate_iteration, affected.size(), learning_rate};
 }
 
-void TreeOptimizer::clearAffected() { new_constraints_.clear(); }
+void TreeOptimizer::clearAffected() {
+  new_constraints_.clear();
+  covered_new_ = 0;
+}
+
+void TreeOptimizer::afterPosesMoved(const std::vector<std::size_t>& moved) {
+  const std::size_t n = graph_.numNodes(), m = graph_.numConstraints();
+  if (constraint_mark_.size() < m) constraint_mark_.resize(m, 0);
+  touched_constraints_.clear();
+  // A constraint whose ends moved with one region (moved_mark_ 2: walked) kept its relative pose,
+  // so its chi2 (up to rounding); only those between regions, or to a node that did not move, are
+  // evaluated again.  That is the path nodes' constraints, not every moved node's.
+  for (std::size_t v : moved) {
+    changes_.node(v, n);
+    for (std::size_t c : incident_[v]) {
+      if (constraint_mark_[c]) continue;
+      const std::size_t other = from_index_[c] == v ? to_index_[c] : from_index_[c];
+      if (moved_mark_[other] == 2 && region_[other] == region_[v]) continue;
+      constraint_mark_[c] = 1;
+      touched_constraints_.push_back(c);
+    }
+  }
+  for (std::size_t c : touched_constraints_) {
+    constraint_mark_[c] = 0;
+    changes_.constraint(c, m);
+    if (!chi2_valid_) continue;
+    const double x = toro::constraintChi2(graph_, c);
+    chi2_total_ += x - chi2_[c];
+    weighted_chi2_total_ += weightedShare(c, x) - weightedShare(c, chi2_[c]);
+    chi2_[c] = x;
+  }
+  if (chi2_valid_ && ++chi2_updates_ >= kChi2ResumEvery) sumChi2();
+}
+
+void TreeOptimizer::sumChi2() {
+  // In constraint order, as toro::g2oChi2 sums: after a full recompute the two agree exactly.
+  double sum = 0.0, weighted = 0.0;
+  for (std::size_t c = 0; c < chi2_.size(); ++c) {
+    sum += chi2_[c];
+    weighted += weightedShare(c, chi2_[c]);
+  }
+  chi2_total_ = sum;
+  weighted_chi2_total_ = weighted;
+  chi2_updates_ = 0;
+}
+
+double TreeOptimizer::chi2() {
+  if (!chi2_valid_) {
+    chi2_.resize(graph_.numConstraints());
+    for (std::size_t c = 0; c < chi2_.size(); ++c) chi2_[c] = toro::constraintChi2(graph_, c);
+    chi2_valid_ = true;
+    sumChi2();
+  }
+  return chi2_total_;
+}
+
+double TreeOptimizer::weightedChi2() {
+  chi2();
+  return weighted_chi2_total_;
+}
+
+double TreeOptimizer::constraintChi2(std::size_t c) {
+  if (c >= graph_.numConstraints()) {
+    throw std::out_of_range("TreeOptimizer::constraintChi2: no constraint " + std::to_string(c));
+  }
+  chi2();
+  return chi2_[c];
+}
 
 void TreeOptimizer::markAffected(std::size_t c) {
   if (c >= graph_.numConstraints())

@@ -138,18 +138,20 @@ void TreeOptimizer::updateConstraint(std::size_t c, double learning_rate) {
   planar_ ? updateConstraintIn<Planar>(c, learning_rate) : updateConstraintIn<Spatial>(c, learning_rate);
 }
 
-void TreeOptimizer::runPass(const std::vector<std::size_t>& constraints, double learning_rate) {
+void TreeOptimizer::runPass(const std::vector<std::size_t>& constraints, double learning_rate, bool partial) {
   // The group is chosen once per pass, so the loop over constraints is the template's alone.
   if (planar_) {
-    runPassIn<Planar>(constraints, learning_rate);
+    runPassIn<Planar>(constraints, learning_rate, partial);
   } else {
-    runPassIn<Spatial>(constraints, learning_rate);
+    runPassIn<Spatial>(constraints, learning_rate, partial);
   }
 }
 
 template <class G>
-void TreeOptimizer::runPassIn(const std::vector<std::size_t>& constraints, double learning_rate) {
+void TreeOptimizer::runPassIn(const std::vector<std::size_t>& constraints, double learning_rate, bool partial) {
   detail::TreeGroupState<G>& s = state<G>();
+  record_moved_ = partial;
+  if (partial && moved_mark_.size() < graph_.numNodes()) moved_mark_.resize(graph_.numNodes(), 0);
   const std::size_t n = constraints.size();
   for (std::size_t k = 0; k < n; ++k) {
     // The visiting order jumps through the per-constraint arrays: fetch what the constraint after
@@ -175,7 +177,12 @@ void TreeOptimizer::runPassIn(const std::vector<std::size_t>& constraints, doubl
     }
     updateConstraintIn<G>(constraints[k], learning_rate);
   }
-  recomputePosesIn<G>();
+  record_moved_ = false;
+  if (partial) {
+    recomputeMovedPosesIn<G>();
+  } else {
+    recomputePosesIn<G>();
+  }
 }
 
 // ---- parameters -------------------------------------------------------------------------------
@@ -230,17 +237,56 @@ void TreeOptimizer::chainInitialGuessIn() {
 }
 
 template <class G>
-inline void TreeOptimizer::recomputePosesIn() {
+inline void TreeOptimizer::recomputePoseIn(std::size_t v) {
   detail::TreeGroupState<G>& s = state<G>();
-  for (std::size_t v : topological_order_) {
-    const std::size_t p = tree_.parent(v);
-    if constexpr (G::kPlanar) {
-      s.world[v] = p == kNone ? s.parameters[v] : s.world[p] * s.parameters[v];
-      graph_.setPoseAt(v, G::toPose3(s.world[v]));
-    } else {
-      graph_.setPoseAt(v, p == kNone ? s.parameters[v] : graph_.node(p).pose * s.parameters[v]);
+  const std::size_t p = tree_.parent(v);
+  if constexpr (G::kPlanar) {
+    s.world[v] = p == kNone ? s.parameters[v] : s.world[p] * s.parameters[v];
+    graph_.setPoseAt(v, G::toPose3(s.world[v]));
+  } else {
+    graph_.setPoseAt(v, p == kNone ? s.parameters[v] : graph_.node(p).pose * s.parameters[v]);
+  }
+}
+
+template <class G>
+inline void TreeOptimizer::recomputePosesIn() {
+  // Every pose may move: the chi2 record and the journal start over.
+  chi2_valid_ = false;
+  changes_.markAll();
+  if (topological_dirty_) {
+    topological_order_ = tree_.topologicalOrder();
+    topological_dirty_ = false;
+  }
+  for (std::size_t v : topological_order_) recomputePoseIn<G>(v);
+}
+
+template <class G>
+void TreeOptimizer::recomputeMovedPosesIn() {
+  // A node's pose is its parent's times its parameter, so exactly the subtrees of the nodes whose
+  // parameters changed move.  Roots nearest the tree's root first: a changed node inside a subtree
+  // already walked is skipped, and every walked node's parent is final when it is recomputed.
+  std::sort(moved_roots_.begin(), moved_roots_.end(),
+            [&](std::size_t a, std::size_t b) { return tree_.level(a) < tree_.level(b); });
+  moved_.clear();
+  if (region_.size() < graph_.numNodes()) region_.resize(graph_.numNodes(), kNone);
+  for (std::size_t root : moved_roots_) {
+    if (moved_mark_[root] == 2) continue;
+    subtree_stack_.assign(1, root);
+    while (!subtree_stack_.empty()) {
+      const std::size_t v = subtree_stack_.back();
+      subtree_stack_.pop_back();
+      recomputePoseIn<G>(v);
+      // A changed node starts a region; the others move with their parent's.
+      region_[v] = moved_mark_[v] == 1 ? v : region_[tree_.parent(v)];
+      moved_mark_[v] = 2;
+      moved_.push_back(v);
+      for (std::size_t child : tree_.children(v)) subtree_stack_.push_back(child);
     }
   }
+  afterPosesMoved(moved_);  // reads the marks and regions of the walk
+  for (std::size_t v : moved_roots_) moved_mark_[v] = 0;
+  for (std::size_t v : moved_) moved_mark_[v] = 0;
+  moved_roots_.clear();
 }
 
 // ---- the update of one constraint ---------------------------------------------------------------
@@ -259,6 +305,7 @@ inline void TreeOptimizer::updateConstraintIn(std::size_t c, double learning_rat
   const bool naive = !G::kPlanar && options_.rotation_update == RotationUpdate::kNaiveEuler;
   if (!naive && (tree_.parent(a) == b || tree_.parent(b) == a)) {
     updateParentEdge<G>(c, learning_rate, tree_.parent(a) == b);
+    if (record_moved_) recordMoved(tree_.parent(a) == b ? a : b);
     return;
   }
   const std::size_t top = tree_.path(a, b, up_, down_);
@@ -297,6 +344,10 @@ inline void TreeOptimizer::updateConstraintIn(std::size_t c, double learning_rat
   translationStep<G>(c, learning_rate, translation_sum, &step);
   moveAndWriteBack<G>(up_, up_rotation_share_, up_translation_share_, step, true, s.up_poses);
   moveAndWriteBack<G>(down_, down_rotation_share_, down_translation_share_, step, false, s.down_poses);
+  if (record_moved_) {
+    for (std::size_t v : up_) recordMoved(v);
+    for (std::size_t v : down_) recordMoved(v);
+  }
 }
 
 template <class G>

@@ -73,7 +73,9 @@ void MapCorrectorNode::onSnapshot(const Pipeline& pipeline, const Snapshot& snap
   graph_pub_.publish(graphMessage(pipeline, snapshot, o->map_frame));
   graph_published_ = true;
   graph_revision_ = pipeline.revision();
-  next_graph_wall_sec_ = now + 1.0 / o->visualization_rate_hz;
+  next_graph_wall_sec_ =
+      now + visualizationPeriodSec(o->visualization_rate_hz, o->visualization_period_per_keyframe_sec,
+                                   snapshot.keyframes.size());
   graph_pending_ = false;
 }
 
@@ -84,11 +86,18 @@ void MapCorrectorNode::visualizationTimerCallback(const ros::WallTimerEvent&) {
   if (s->generation == published_generation_) return;
   const std::shared_ptr<const NodeOptions> o = options();
   const bool new_epoch = s->epoch != published_epoch_;
-  const ros::Time now = ros::Time::now();
-  path_pub_.publish(pathFromSnapshot(*s, o->map_frame, now));
-  markers_pub_.publish(markersFromSnapshot(*s, o->map_frame, now, o->markers, new_epoch));
-  published_generation_ = s->generation;
-  published_epoch_ = s->epoch;
+  const double wall = ros::WallTime::now().toSec();
+  // Large graphs wait longer (visualizationPeriodSec); a reset clears the old markers at once.
+  if (new_epoch || wall >= next_visualization_wall_sec_) {
+    const ros::Time now = ros::Time::now();
+    path_pub_.publish(pathFromSnapshot(*s, o->map_frame, now));
+    markers_pub_.publish(markersFromSnapshot(*s, o->map_frame, now, o->markers, new_epoch));
+    published_generation_ = s->generation;
+    published_epoch_ = s->epoch;
+    next_visualization_wall_sec_ =
+        wall + visualizationPeriodSec(o->visualization_rate_hz, o->visualization_period_per_keyframe_sec,
+                                      s->keyframes.size());
+  }
 
   // Once odometry has stopped (a bag ended), a later correction (~optimize, a full round) would
   // otherwise never reach ~pose: publish the last pose again with the new map_T_odom.

@@ -158,6 +158,8 @@ std::string NodeOptions::validate() const {
     return "transform_tolerance_sec must be >= 0";
   if (!(visualization_rate_hz > 0 && std::isfinite(visualization_rate_hz)))
     return "visualization_rate_hz must be > 0";
+  if (!(visualization_period_per_keyframe_sec >= 0 && std::isfinite(visualization_period_per_keyframe_sec)))
+    return "visualization_period_per_keyframe_sec must be >= 0";
   if (!(diagnostics_rate_hz > 0 && std::isfinite(diagnostics_rate_hz)))
     return "diagnostics_rate_hz must be > 0";
   if (queue_size <= 0) return "queue_size must be > 0";
@@ -177,6 +179,7 @@ NodeOptions loadNodeOptions(const XmlRpc::XmlRpcValue& params, OptionsReport* re
   r.read("tf_rate_hz", o.tf_rate_hz);
   r.read("transform_tolerance_sec", o.transform_tolerance_sec);
   r.read("visualization_rate_hz", o.visualization_rate_hz);
+  r.read("visualization_period_per_keyframe_sec", o.visualization_period_per_keyframe_sec);
   r.read("diagnostics_rate_hz", o.diagnostics_rate_hz);
   r.read("queue_size", o.queue_size);
   r.read("service_timeout_sec", o.service_timeout_sec);

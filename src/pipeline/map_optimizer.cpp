@@ -23,6 +23,7 @@
 #include "toro_ros/core/loop_closure_pairs.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/pipeline/msg_conversion.h"
+#include "toro_ros/pipeline/snapshot_builder.h"
 
 namespace toro_ros {
 
@@ -177,6 +178,7 @@ toro::TreeOptimizerOptions MapOptimizer::optimizerOptions() const {
   out.robust = robust_;
   out.robust.width = robust_width_;
   out.parameterization = planar_ ? toro::Parameterization::kPlanar : toro::Parameterization::kSpatial;
+  out.weighted_chi2_set_aside = toro::FinishOptions{}.robust_set_aside_weight;  // what a finish minimises
   return out;
 }
 
@@ -371,17 +373,14 @@ std::size_t MapOptimizer::heldLoopClosures() const {
 }
 
 void MapOptimizer::updateChi2() {
-  const toro::PoseGraph& g = optimizer_.graph();
-  const std::vector<double>& w = optimizer_.weights();
-  const double set_aside = toro::FinishOptions{}.robust_set_aside_weight;
-  double plain = 0.0, weighted = 0.0;
-  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
-    const double chi2 = toro::constraintChi2(g, c);
-    plain += chi2;
-    if (!(w[c] < set_aside)) weighted += w[c] * chi2;
-  }
-  last_chi2_ = plain;
-  weighted_chi2_ = weighted;
+  // The optimiser keeps both sums per constraint: after an affected pass this costs what the pass
+  // moved; after a full pass, setPoses or a new optimiser, one O(constraints) evaluation.
+  last_chi2_ = optimizer_.chi2();
+  weighted_chi2_ = optimizer_.weightedChi2();
+}
+
+void MapOptimizer::updateSnapshot(SnapshotBuilder& builder, const std::vector<KeyframeRecord>& records) {
+  builder.update(optimizer_, records, is_loop_closure_);
 }
 
 // ---- the schedule -----------------------------------------------------------------------------
@@ -487,7 +486,7 @@ OptimizeResult MapOptimizer::optimize(unsigned iterations, bool finish) {
   if (finish) return finishNow(iterations);
   OptimizeResult r;
   r.iterations = iterations > 0 ? static_cast<int>(iterations) : options_.service_default_iterations;
-  r.chi2_before = toro::g2oChi2(optimizer_.graph());
+  r.chi2_before = optimizer_.chi2();
   optimizer_.setIteration(0);
   r.time_sec = timed([&] {
     // A loop closure removed by the re-check leaves the others to settle: passes again (bounded).

@@ -329,21 +329,11 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
   s->generation = ++generation_;
   s->epoch = epoch_;
   const toro::PoseGraph& g = map_.graph();
-  const std::vector<bool>& is_loop_closure = map_.loopClosureFlags();
-  const std::vector<double>& weights = map_.weights();
   const auto& records = keyframes_.records();
-  s->keyframes.reserve(records.size());
-  for (std::size_t i = 0; i < records.size(); ++i)
-    s->keyframes.push_back(SnapshotKeyframe{records[i].id, records[i].stamp, g.node(i).pose});
-  s->edges.reserve(g.numConstraints());
-  for (std::size_t c = 0; c < g.numConstraints(); ++c) {
-    const toro::Constraint& k = g.constraints()[c];
-    const bool lc = is_loop_closure[c];
-    const double weight = weights[c];
-    s->edges.push_back(
-        SnapshotEdge{g.indexOf(k.from), g.indexOf(k.to), lc, lc ? toro::constraintChi2(g, c) : 0.0, weight});
-    if (lc && weight < toro::kRejectedWeight) ++s->down_weighted_loop_closures;
-  }
+  map_.updateSnapshot(snapshot_builder_, records);
+  s->keyframes = snapshot_builder_.shareKeyframes();
+  s->edges = snapshot_builder_.shareEdges();
+  s->down_weighted_loop_closures = snapshot_builder_.downWeighted();
   s->robust_width = map_.robustWidth();
   for (const RejectedLoopClosure& r : map_.rejected())
     if (g.hasNode(r.constraint.from) && g.hasNode(r.constraint.to))

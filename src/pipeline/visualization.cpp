@@ -50,6 +50,10 @@ std::string MarkerOptions::validate() const {
   return "";
 }
 
+double visualizationPeriodSec(double rate_hz, double period_per_keyframe_sec, std::size_t keyframes) {
+  return std::max(1.0 / rate_hz, period_per_keyframe_sec * static_cast<double>(keyframes));
+}
+
 std_msgs::ColorRGBA residualColour(double chi2, double chi2_red) {
   const double f = std::isfinite(chi2) ? std::clamp(chi2 / chi2_red, 0.0, 1.0) : 1.0;
   // Green to yellow over the first half, yellow to red over the second.

@@ -37,6 +37,7 @@ TEST(NodeOptions, ShippedConfigValuesAreTheDefaults) {
   const NodeOptions defaults;
   EXPECT_EQ(loaded.map_frame, defaults.map_frame);
   EXPECT_EQ(loaded.tf_rate_hz, defaults.tf_rate_hz);
+  EXPECT_EQ(loaded.visualization_period_per_keyframe_sec, defaults.visualization_period_per_keyframe_sec);
   EXPECT_EQ(loaded.pipeline.keyframer.distance_m, defaults.pipeline.keyframer.distance_m);
   EXPECT_EQ(loaded.pipeline.keyframer.covariance_mode, defaults.pipeline.keyframer.covariance_mode);
   EXPECT_EQ(loaded.pipeline.matcher.max_pending, defaults.pipeline.matcher.max_pending);
@@ -99,6 +100,17 @@ TEST(NodeOptions, WrongTypesAndInvalidValuesAreErrorsNamingTheKey) {
   loadNodeOptions(bad_range, &r2);
   ASSERT_EQ(r2.errors.size(), 1u);
   EXPECT_NE(r2.errors[0].find("angle_rad"), std::string::npos);
+
+  XmlRpc::XmlRpcValue bad_period;
+  bad_period["visualization_period_per_keyframe_sec"] = -1e-4;
+  OptionsReport r4;
+  loadNodeOptions(bad_period, &r4);
+  ASSERT_EQ(r4.errors.size(), 1u);
+  EXPECT_NE(r4.errors[0].find("visualization_period_per_keyframe_sec must be >= 0"), std::string::npos);
+  bad_period["visualization_period_per_keyframe_sec"] = 0.0;  // 0: the rate alone
+  OptionsReport r5;
+  EXPECT_EQ(loadNodeOptions(bad_period, &r5).visualization_period_per_keyframe_sec, 0.0);
+  EXPECT_TRUE(r5.errors.empty());
 }
 
 TEST(NodeOptions, FinishThreadsDefaultIsOneAndNegativeCountsAreErrors) {

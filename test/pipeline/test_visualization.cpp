@@ -79,7 +79,9 @@ TEST(Visualization, RejectedLoopClosuresHaveTheirOwnNamespaceAndColour) {
 
 TEST(Visualization, DownWeightedLoopClosuresAreDrawnApartInOrange) {
   Snapshot s = snapshot();
-  s.edges[3].weight = 0.2;  // the loop closure 3 -> 0: robust weight below 0.5
+  SnapshotEdge down_weighted = s.edges[3];
+  down_weighted.weight = 0.2;  // the loop closure 3 -> 0: robust weight below 0.5
+  s.edges.set(3, down_weighted);
   const auto a = markersFromSnapshot(s, "map", ros::Time(20), MarkerOptions{}, false);
   const Marker* down = find(a, marker_ns::kDownWeightedLoopClosures);
   const Marker* loops = find(a, marker_ns::kLoopClosures);
@@ -109,4 +111,13 @@ TEST(Visualization, ResidualColourRamp) {
   EXPECT_FLOAT_EQ(residualColour(5.0, 10.0).r, 1.0f);  // half way: yellow
   EXPECT_FLOAT_EQ(residualColour(5.0, 10.0).g, 1.0f);
   EXPECT_FLOAT_EQ(residualColour(std::nan(""), 10.0).r, 1.0f);
+}
+
+TEST(Visualization, LargeGraphsArePublishedLessOften) {
+  // 2 Hz and 1e-4 s per keyframe: the rate's 0.5 s up to 5,000 keyframes, then linear.
+  EXPECT_DOUBLE_EQ(visualizationPeriodSec(2.0, 1e-4, 0), 0.5);
+  EXPECT_DOUBLE_EQ(visualizationPeriodSec(2.0, 1e-4, 5000), 0.5);
+  EXPECT_DOUBLE_EQ(visualizationPeriodSec(2.0, 1e-4, 20000), 2.0);
+  EXPECT_DOUBLE_EQ(visualizationPeriodSec(2.0, 1e-4, 100000), 10.0);
+  EXPECT_DOUBLE_EQ(visualizationPeriodSec(10.0, 0.0, 100000), 0.1);  // 0: the rate alone
 }

@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "toro_ros/core/change_journal.h"
 #include "toro_ros/core/loop_closure_innovation.h"
 #include "toro_ros/core/parameter_tree.h"
 #include "toro_ros/core/pose_graph.h"
@@ -76,6 +77,9 @@ struct TreeOptimizerOptions {
   // tree path (loop_closure_innovation.h: a right loop closure closing a long loop is judged
   // against the drift the path allows) or, false, its plain chi2 e^T Omega e.
   bool robust_by_innovation = true;
+  // weightedChi2() leaves out constraints weighted below this (in [0, 1)): the pipeline sets it to
+  // the sparse finish's set-aside weight, so it reports the cost the finish minimises.
+  double weighted_chi2_set_aside = 1e-3;
   // Constraints are visited in increasing level of their top node (root side first).
   // Returns an empty string when valid, else what is wrong.
   std::string validate() const;
@@ -110,10 +114,15 @@ class TreeOptimizer {
   // One full pass over all constraints; the learning rate decays with the iteration counter.
   // Afterwards no constraint counts as new for iterateAffected().
   IterationStats iterate();
-  // One pass over the constraints affected by what was added since the last full pass (the new
-  // constraints and every constraint touching a node on their tree paths), with the learning rate
-  // of the given iteration index.  Does not advance the iteration counter; call it repeatedly with
-  // growing indices to settle a new loop closure.
+  // One pass over the constraints affected by what was added (the new constraints and every
+  // constraint touching a node on their tree paths), with the learning rate of the given iteration
+  // index.  Does not advance the iteration counter; call it repeatedly with growing indices to
+  // settle a new loop closure.  "Added" counts from the last full pass, clearAffected(), or the
+  // previous settling: a call with index 1 starts a new settling and leaves out the constraints
+  // the calls before it covered (they had their passes; those at the new paths are visited again
+  // as touching them).  So a pass costs what the new constraints reach, not what was added since
+  // the last full pass: without full passes that would become the whole graph.  Only the subtrees
+  // of the nodes it changed are recomputed.
   IterationStats iterateAffected(std::size_t learning_rate_iteration = 1);
   // One update of one constraint with the given learning rate (the building block of the passes
   // above), followed by a refresh of all poses.  For tests and custom schedules.
@@ -156,6 +165,23 @@ class TreeOptimizer {
   // preconditioner follow at once.  No effect on constraints that are not robust.
   void setWeightCap(std::size_t c, double cap);
   double weightCap(std::size_t c) const { return weight_cap_[c]; }
+
+  // The g2o chi2 of graph() (toro::g2oChi2, equal up to rounding) and of one constraint
+  // (toro::constraintChi2).  Kept per constraint: an affected pass updates the constraints at the
+  // nodes it moved, so after one the cost is proportional to what moved, not to the graph; after a
+  // full pass, setGraph, setPoses or applyUpdate (every pose may have moved) the first call
+  // computes all of them.  Non-const: they fill that record.
+  double chi2();
+  double constraintChi2(std::size_t c);
+  // The chi2 with each constraint's information scaled by its robust weight (odometry: 1), those
+  // weighted below options().weighted_chi2_set_aside left out.  Kept like chi2(), and a weight
+  // change (setWeightCap, a refresh) updates it by that constraint's share alone.
+  double weightedChi2();
+  // What changed since the last call (change_journal.h): nodes whose pose changed, constraints
+  // whose chi2 or robust weight changed, or everything (setGraph, setPoses, a full pass,
+  // applyUpdate, a copy or move of the optimiser).  Nodes and constraints added since are not listed: the consumer
+  // sees them by the graph's size.
+  OptimizerChanges takeChanges() { return changes_.take(); }
 
   // The graph with the current pose estimates (2D, exactly planar, when planar()).
   const PoseGraph& graph() const { return graph_; }
@@ -202,7 +228,25 @@ class TreeOptimizer {
   void chainInitialGuess();
   void parametersFromPoses();
   void recomputePoses();
-  void runPass(const std::vector<std::size_t>& constraints, double learning_rate);
+  // partial: recompute only the subtrees of the nodes the pass changed (iterateAffected), and
+  // keep chi2 and the journal from them; else every pose (a full pass).
+  void runPass(const std::vector<std::size_t>& constraints, double learning_rate, bool partial = false);
+  // A node whose parameter the running partial pass changed.
+  void recordMoved(std::size_t v) {
+    if (!moved_mark_[v]) {
+      moved_mark_[v] = 1;
+      moved_roots_.push_back(v);
+    }
+  }
+  // After a partial recompute: the moved nodes and their constraints go into the journal and the
+  // chi2 record.
+  void afterPosesMoved(const std::vector<std::size_t>& moved);
+  void sumChi2();
+  // Constraint c's part of weightedChi2() at the given plain chi2 and its current weight.
+  double weightedShare(std::size_t c, double chi2) const {
+    const double w = robust_weight_[c];
+    return w < options_.weighted_chi2_set_aside ? 0.0 : w * chi2;
+  }
   void updateConstraint(std::size_t c, double learning_rate);
 
   template <class G>
@@ -222,7 +266,12 @@ class TreeOptimizer {
   template <class G>
   void recomputePosesIn();
   template <class G>
-  void runPassIn(const std::vector<std::size_t>& constraints, double learning_rate);
+  void recomputePoseIn(std::size_t v);
+  // The subtrees of moved_roots_ (each node once, parents first), then afterPosesMoved.
+  template <class G>
+  void recomputeMovedPosesIn();
+  template <class G>
+  void runPassIn(const std::vector<std::size_t>& constraints, double learning_rate, bool partial);
   template <class G>
   void updateConstraintIn(std::size_t c, double learning_rate);
   // What one visit moves its path by: the rotation error and the translation residual in the top
@@ -288,7 +337,11 @@ class TreeOptimizer {
   std::vector<int> top_level_;           // level of each constraint's top node (refreshStructure)
   bool structure_dirty_ = true;          // tree changed since refreshStructure()
   std::vector<std::size_t> topological_order_;
+  // The tree was re-shaped (a loop closure re-parented a node) since topological_order_ was made:
+  // it is remade when a full recompute needs it, not at every loop closure (it is O(nodes)).
+  bool topological_dirty_ = false;
   std::vector<std::size_t> new_constraints_;
+  std::size_t covered_new_ = 0;  // new_constraints_[0, covered_new_) had an affected pass
   std::vector<std::vector<std::size_t>> incident_;  // constraints per node
   std::size_t iteration_ = 0;
   double translation_rate_factor_ = 1.0;  // gamma / translation_gamma
@@ -299,6 +352,23 @@ class TreeOptimizer {
   std::vector<double> up_translation_share_, down_translation_share_;
   std::vector<char> affected_mark_;
   InnovationScratch innovation_scratch_;
+  // Partial passes: the nodes whose parameters changed (moved_mark_ 1) and, during the subtree
+  // walk, the nodes recomputed (2); scratch, empty between passes.
+  bool record_moved_ = false;
+  std::vector<std::size_t> moved_roots_, moved_, subtree_stack_, touched_constraints_;
+  std::vector<char> moved_mark_, constraint_mark_;
+  // During the walk: the changed node whose subtree gave each walked node its new pose.  Nodes of
+  // one region moved rigidly together, so only constraints between regions change their chi2.
+  std::vector<std::size_t> region_;
+  // g2o chi2 per constraint and their sums (chi2(), weightedChi2()); chi2_valid_ false: to be
+  // computed in full.  The sums are updated by differences and re-summed every kChi2ResumEvery
+  // partial updates, so rounding cannot drift far from the exact sums.
+  std::vector<double> chi2_;
+  double chi2_total_ = 0.0;
+  double weighted_chi2_total_ = 0.0;
+  bool chi2_valid_ = false;
+  std::size_t chi2_updates_ = 0;
+  ChangeJournal changes_;
 };
 
 }  // namespace toro

@@ -116,6 +116,7 @@ class MapCorrectorNode {
   // Visualisation timer state (only its callback touches these).
   std::uint64_t published_generation_ = 0;
   std::uint64_t published_epoch_ = 0;
+  double next_visualization_wall_sec_ = 0.0;  // ~path and ~graph_markers wait until then
   // ~graph state, touched only by onSnapshot (the worker thread, or the constructor before it).
   std::uint64_t graph_revision_ = 0;
   bool graph_published_ = false;

@@ -21,6 +21,8 @@ struct NodeOptions {
   double tf_rate_hz = 50.0;              // map->odom republish rate
   double transform_tolerance_sec = 0.1;  // tf stamped this far ahead of now
   double visualization_rate_hz = 2.0;    // max rate of ~path and ~graph_markers updates
+  // ... and at least this many seconds per keyframe between two (visualizationPeriodSec).
+  double visualization_period_per_keyframe_sec = 1e-4;
   double diagnostics_rate_hz = 1.0;
   int queue_size = 2000;              // input queue bound (messages beyond are dropped, counted)
   double service_timeout_sec = 60.0;  // a service waits this long for the worker

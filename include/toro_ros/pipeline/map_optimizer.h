@@ -29,6 +29,9 @@
 
 namespace toro_ros {
 
+class SnapshotBuilder;
+struct KeyframeRecord;
+
 struct OptimizationOptions {
   double gamma = 1.0;  // TORO learning rate 1/(gamma k)
   // Full rounds: `full_iterations` passes over all constraints, due every `full_every_keyframes`
@@ -156,6 +159,9 @@ class MapOptimizer {
                         double gate_threshold);
 
   const toro::PoseGraph& graph() const { return optimizer_.graph(); }
+  // Brings `builder` (the owner's snapshot keyframes and edges; records[i] is graph node i) up to
+  // date from what the optimiser changed since the last call (SnapshotBuilder::update).
+  void updateSnapshot(SnapshotBuilder& builder, const std::vector<KeyframeRecord>& records);
   const std::vector<bool>& loopClosureFlags() const { return is_loop_closure_; }
   const std::vector<double>& weights() const { return optimizer_.weights(); }
   const std::vector<RejectedLoopClosure>& rejected() const { return rejected_; }
@@ -206,7 +212,7 @@ class MapOptimizer {
   int odometryVerdict(std::size_t c);
   bool hasConsistentPartner(std::size_t c, bool release_held);
   const std::vector<std::size_t>& odometrySteps();
-  // last_chi2_ and weighted_chi2_ from the current poses.
+  // last_chi2_ and weighted_chi2_ from the current poses and weights.
   void updateChi2();
 
   OptimizationOptions options_;

@@ -24,6 +24,7 @@
 #include "toro_ros/pipeline/map_optimizer.h"
 #include "toro_ros/pipeline/odometry_history.h"
 #include "toro_ros/pipeline/snapshot.h"
+#include "toro_ros/pipeline/snapshot_builder.h"
 
 namespace toro_ros {
 
@@ -171,7 +172,10 @@ class Pipeline {
   // autosave (the node calls it on shutdown).  Empty string when saved or nothing to do.
   std::string autosave();
 
-  // A new immutable snapshot of the current state (O(keyframes + constraints)).
+  // A new immutable snapshot of the current state: O(what changed since the last one) after new
+  // keyframes, affected passes and weight changes; O(keyframes + constraints) after full passes,
+  // a finish merge (every pose set) and a replaced graph (gate restore, re-check, reset, load)
+  // (snapshot_builder.h).
   std::shared_ptr<const Snapshot> makeSnapshot();
   PipelineStatus status() const;
   const toro::PoseGraph& graph() const { return map_.graph(); }
@@ -244,6 +248,8 @@ class Pipeline {
   ros::Time loaded_until_;  // newest keyframe stamp of the last load (input up to it is refused)
   ros::Time last_autosave_stamp_;
   std::uint64_t autosaved_revision_ = 0;
+  // The keyframes and edges of the snapshots, kept up to date from the optimiser's journal.
+  SnapshotBuilder snapshot_builder_;
 };
 
 }  // namespace toro_ros

@@ -1,5 +1,7 @@
 // What the pipeline hands to publishers: an immutable copy of the corrected map and counters,
-// shared as std::shared_ptr<const Snapshot> so readers never touch the live graph.
+// shared as std::shared_ptr<const Snapshot> so readers never touch the live graph.  Keyframes and
+// edges are chunked vectors (chunked_vector.h): consecutive snapshots share the chunks in which
+// nothing changed, so making one costs what changed, not the size of the map.
 #pragma once
 
 #include <cstdint>
@@ -12,6 +14,7 @@
 
 #include "toro_ros/core/pose3.h"
 #include "toro_ros/core/pose_graph.h"
+#include "toro_ros/pipeline/chunked_vector.h"
 
 namespace toro_ros {
 
@@ -93,8 +96,8 @@ struct FinishRecord {
 struct Snapshot {
   std::uint64_t generation = 0;  // increases with every snapshot the pipeline makes
   std::uint64_t epoch = 0;       // increases with every reset/load: publishers clear old markers
-  std::vector<SnapshotKeyframe> keyframes;
-  std::vector<SnapshotEdge> edges;
+  ChunkedVector<SnapshotKeyframe> keyframes;  // in graph order (node index)
+  ChunkedVector<SnapshotEdge> edges;          // by constraint index
   std::vector<SnapshotEdge> rejected_edges;  // loop closures the gate refused (chi2 when refused)
   std::size_t down_weighted_loop_closures = 0;  // edges with loop_closure and weight < kRejectedWeight
   double robust_width = 0.0;                    // the robust kernel's width (0: robust off)

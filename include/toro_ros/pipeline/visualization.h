@@ -1,6 +1,7 @@
 // What to draw: nav_msgs/Path and rviz markers made from a Snapshot (no publishing here).
 #pragma once
 
+#include <cstddef>
 #include <string>
 
 #include <nav_msgs/Path.h>
@@ -37,6 +38,12 @@ nav_msgs::Path pathFromSnapshot(const Snapshot& snapshot, const std::string& map
 visualization_msgs::MarkerArray markersFromSnapshot(const Snapshot& snapshot, const std::string& map_frame,
                                                     const ros::Time& stamp, const MarkerOptions& options,
                                                     bool delete_all);
+
+// Seconds between two publications of the whole-graph topics (~path, ~graph_markers, ~graph):
+// 1 / rate_hz, or period_per_keyframe_sec * keyframes when that is longer.  Building and
+// serialising them is linear in the graph, so this bounds their share of the machine (about their
+// cost per keyframe / period_per_keyframe_sec) however long the robot maps.
+double visualizationPeriodSec(double rate_hz, double period_per_keyframe_sec, std::size_t keyframes);
 
 // Colour of a loop closure with this chi2: green -> yellow -> red.
 std_msgs::ColorRGBA residualColour(double chi2, double chi2_red);
