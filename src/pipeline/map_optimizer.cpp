@@ -61,6 +61,10 @@ constexpr std::size_t kMinPairsToAdaptSupport = 10;
 constexpr double kSupportLenience = 4.0;
 constexpr std::size_t kPairSample = 1000;
 constexpr double kSupportScaleQuantile = 0.2;
+// A loop closure counts as supported when this many neighbours agree with it: two wrong ones
+// agree by chance now and then (1000 random ones on intel: two sharing an end and a borrowed
+// measurement), three far more rarely; a right one of a revisit has more.
+constexpr std::size_t kMinPartners = 2;
 
 constexpr const char* kArrivalReason = "loop closure: failed the chi-square gate";
 constexpr const char* kRecheckReason = "loop closure: failed the chi-square gate on re-check";
@@ -275,14 +279,14 @@ const std::vector<std::size_t>& MapOptimizer::odometrySteps() {
   return odometry_steps_;
 }
 
-bool MapOptimizer::hasConsistentPartner(std::size_t c, bool release_held) {
+std::vector<std::size_t> MapOptimizer::consistentPartners(std::size_t c, bool record) {
   const toro::PoseGraph& g = optimizer_.graph();
   const std::vector<std::size_t>& steps = odometrySteps();
   const std::size_t window = static_cast<std::size_t>(options_.support_window_keyframes);
   const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
   const double threshold = supportThreshold();
   const auto near = [window](std::size_t x, std::size_t y) { return (x > y ? x - y : y - x) <= window; };
-  bool found = false;
+  std::vector<std::size_t> partners;
   // Every loop closure with one end within the window of a: the other end must be near b.
   const std::size_t lo = a > window ? a - window : 0, hi = std::min(g.numNodes() - 1, a + window);
   for (std::size_t u = lo; u <= hi; ++u) {
@@ -291,21 +295,26 @@ bool MapOptimizer::hasConsistentPartner(std::size_t c, bool release_held) {
       const std::size_t other = optimizer_.fromIndex(j) == u ? optimizer_.toIndex(j) : optimizer_.fromIndex(j);
       if (!near(other, b)) continue;
       if (std::minmax(u, other) == std::minmax(a, b)) continue;  // the same two poses: no second view
+      if (std::find(partners.begin(), partners.end(), j) != partners.end()) continue;
       const double chi2 = toro::loopClosurePairChi2(g, steps, c, j, planar_);
       if (!(chi2 >= 0.0)) continue;
-      // The newest kPairSample tested cycles (a ring): the threshold's statistic.
-      if (tested_pair_chi2_.size() < kPairSample) tested_pair_chi2_.push_back(chi2);
-      else tested_pair_chi2_[pairs_tested_ % kPairSample] = chi2;
-      ++pairs_tested_;
+      if (record) {
+        // The newest kPairSample tested cycles (a ring): the threshold's statistic.
+        if (tested_pair_chi2_.size() < kPairSample) tested_pair_chi2_.push_back(chi2);
+        else tested_pair_chi2_[pairs_tested_ % kPairSample] = chi2;
+        ++pairs_tested_;
+      }
       // No pair counts before the threshold knows the sender's scale (a few loop closures of the
       // first revisit wait for it).
       if (pairs_tested_ < kMinPairsToAdaptSupport || !(chi2 <= threshold)) continue;
-      found = true;
-      if (!release_held) return true;
-      if (optimizer_.weightCap(j) < 1.0) release(j);
+      partners.push_back(j);
     }
   }
-  return found;
+  return partners;
+}
+
+bool MapOptimizer::supportedByPartners(std::size_t c) {
+  return consistentPartners(c, false).size() >= kMinPartners;
 }
 
 void MapOptimizer::release(std::size_t c) {
@@ -331,17 +340,20 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   const bool scale_was_known = pairs_tested_ >= kMinPairsToAdaptSupport;
   // Ends a few keyframes apart: the odometry between them decides (a short chain is precise).
   const int verdict = odometryVerdict(c);
-  // A neighbour is looked for even when the map agrees: a held one it agrees with is released.
-  const bool supported = verdict > 0 || (verdict == 0 && (hasConsistentPartner(c, true) || agreesWithMap(c)));
+  const std::vector<std::size_t> partners = verdict == 0 ? consistentPartners(c, true) : std::vector<std::size_t>{};
+  const bool supported = verdict > 0 || (verdict == 0 && (partners.size() >= kMinPartners || agreesWithMap(c)));
   if (!supported) {
     optimizer_.setWeightCap(c, 0.0);
     ++counters_->loop_closures_held;
   }
+  // Held neighbours it agrees with may have enough support now.
+  for (std::size_t j : partners)
+    if (optimizer_.weightCap(j) < 1.0 && supportedByPartners(j)) release(j);
   if (scale_was_known || pairs_tested_ < kMinPairsToAdaptSupport) return;
   // The threshold has just learnt the sender's scale: the loop closures held while it could not
   // judge pairs (the first revisit) are judged again.
   for (std::size_t h = 0; h < is_loop_closure_.size(); ++h)
-    if (is_loop_closure_[h] && optimizer_.weightCap(h) < 1.0 && odometryVerdict(h) == 0 && hasConsistentPartner(h, true))
+    if (is_loop_closure_[h] && optimizer_.weightCap(h) < 1.0 && odometryVerdict(h) == 0 && supportedByPartners(h))
       release(h);
 }
 
@@ -362,7 +374,7 @@ void MapOptimizer::judgeAllSupport() {
   for (std::size_t c = 0; c < is_loop_closure_.size(); ++c)
     if (is_loop_closure_[c]) {
       const int verdict = odometryVerdict(c);
-      if (verdict > 0 || (verdict == 0 && (hasConsistentPartner(c, false) || agreesWithMap(c)))) continue;
+      if (verdict > 0 || (verdict == 0 && (supportedByPartners(c) || agreesWithMap(c)))) continue;
       optimizer_.setWeightCap(c, 0.0);
     }
 }

@@ -56,13 +56,15 @@ struct OptimizationOptions {
   int finish_max_iterations = 20;
   double finish_chi2_tolerance = 0.01;
   // Support (with robust loop closures on): a new loop closure that would bend the map (its g2o
-  // chi2 on the map as it is exceeds the robust width) is held at weight 0 until another loop
-  // closure whose ends lie within `support_window_keyframes` keyframes of its ends agrees with it
-  // (toro::loopClosurePairChi2: the cycle of the two and the odometry between them, whatever the
-  // map), or until the map comes to agree with it.  Why: a wrong loop closure between distant
-  // places meets a long, compliant path, so no test of it alone rejects it, and once applied it
-  // bends the map for everyone; a right one of a revisit has neighbours that say the same.  The
-  // price: the first loop closure of a revisit corrects the map when the second arrives.
+  // chi2 on the map as it is exceeds the robust width) is held at weight 0 until two other loop
+  // closures whose ends lie within `support_window_keyframes` keyframes of its ends agree with it
+  // (toro::loopClosurePairChi2: the cycle of two and the odometry between them, whatever the
+  // map), or until the map comes to agree with it; one whose own ends lie within the window is
+  // decided by the odometry between them.  Why: a wrong loop closure between distant places
+  // meets a long, compliant path, so no test of it alone rejects it, and once applied it bends
+  // the map for everyone; a right one of a revisit has neighbours that say the same.  The price:
+  // a revisit corrects the map from its third loop closure on (its fifth the first time, while
+  // the threshold learns the sender's covariance scale).
   bool hold_until_supported = true;
   int support_window_keyframes = 25;
   std::string validate() const;
@@ -210,7 +212,10 @@ class MapOptimizer {
   // Ends within the support window: +1 the odometry between them agrees, -1 it contradicts; 0
   // farther apart (or not connected by odometry): the odometry cannot tell.
   int odometryVerdict(std::size_t c);
-  bool hasConsistentPartner(std::size_t c, bool release_held);
+  // The loop closures near c that agree with it (`record`: its tests feed the threshold's
+  // statistic, for a new arrival only), and whether there are enough of them.
+  std::vector<std::size_t> consistentPartners(std::size_t c, bool record);
+  bool supportedByPartners(std::size_t c);
   const std::vector<std::size_t>& odometrySteps();
   // last_chi2_ and weighted_chi2_ from the current poses and weights.
   void updateChi2();
