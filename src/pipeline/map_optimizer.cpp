@@ -65,6 +65,8 @@ constexpr double kSupportScaleQuantile = 0.2;
 // agree by chance now and then (1000 random ones on intel: two sharing an end and a borrowed
 // measurement), three far more rarely; a right one of a revisit has more.
 constexpr std::size_t kMinPartners = 2;
+// Held loop closures with none released after this many: said once, with the parameter to change.
+constexpr std::uint64_t kHeldBeforeAdvice = 20;
 
 constexpr const char* kArrivalReason = "loop closure: failed the chi-square gate";
 constexpr const char* kRecheckReason = "loop closure: failed the chi-square gate on re-check";
@@ -345,6 +347,11 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   if (!supported) {
     optimizer_.setWeightCap(c, 0.0);
     ++counters_->loop_closures_held;
+    if (counters_->loop_closures_held == kHeldBeforeAdvice && counters_->loop_closures_released == 0 && warn_)
+      warn_(std::to_string(kHeldBeforeAdvice) +
+            " loop closures held for support and none released yet: each waits until two others near it agree "
+            "(robust_hold_until_supported).  A front end that reports one loop closure per revisit never gives "
+            "that; set robust_hold_until_supported: false for it (robust weights still apply)");
   }
   // Held neighbours it agrees with may have enough support now.
   for (std::size_t j : partners)

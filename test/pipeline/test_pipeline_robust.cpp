@@ -294,3 +294,23 @@ TEST(PipelineSupport, WrongNearbyLoopClosuresThatAgreeWithEachOtherStayHeldByThe
   EXPECT_EQ(far_released, 2u);
   EXPECT_GT(far_move, 0.5);
 }
+
+TEST(PipelineSupport, LoneLoopClosuresThatNeverFindSupportAreAdvisedOnceWithTheParameter) {
+  // Loop closures that never find two neighbours agreeing (here: each claims another heading, so
+  // no two agree): each waits; once 20 wait and none was released the log says so once, naming
+  // the parameter (a front end that reports one loop closure per revisit looks the same).
+  const DriftScenario sc = makeDriftingSquare(3);
+  std::vector<std::string> warnings;
+  Pipeline p(withSupport(), [&](const std::string& w) { warnings.push_back(w); });
+  for (const auto& m : sc.odometry) p.handleOdometry(m);
+  for (std::size_t k = 0; k < 25; ++k) {
+    LoopClosure lc = trueLoopClosure(sc, 5 + 5 * k, 405 + 5 * k);
+    lc.from_T_to = poseToMsg(toro::Pose3::fromRollPitchYaw(1.0, 0, 0, 0, 0, 0.3 * static_cast<double>(k + 1)));
+    p.handleLoopClosure(lc);
+  }
+  drain(p);
+  EXPECT_GE(p.status().counters.loop_closures_held, 20u);
+  std::size_t advice = 0;
+  for (const std::string& w : warnings) advice += w.find("robust_hold_until_supported: false") != std::string::npos;
+  EXPECT_EQ(advice, 1u);
+}
