@@ -293,7 +293,7 @@ std::vector<std::size_t> MapOptimizer::consistentPartners(std::size_t c, bool re
   const std::size_t lo = a > window ? a - window : 0, hi = std::min(g.numNodes() - 1, a + window);
   for (std::size_t u = lo; u <= hi; ++u) {
     for (std::size_t j : optimizer_.incident(u)) {
-      if (j == c || !is_loop_closure_[j] || odometryVerdict(j) < 0) continue;
+      if (j == c || !is_loop_closure_[j] || odometryVerdict(j, threshold) < 0) continue;
       const std::size_t other = optimizer_.fromIndex(j) == u ? optimizer_.toIndex(j) : optimizer_.fromIndex(j);
       if (!near(other, b)) continue;
       if (std::minmax(u, other) == std::minmax(a, b)) continue;  // the same two poses: no second view
@@ -329,19 +329,19 @@ void MapOptimizer::release(std::size_t c) {
   ++revision_;
 }
 
-int MapOptimizer::odometryVerdict(std::size_t c) {
+int MapOptimizer::odometryVerdict(std::size_t c, double threshold) {
   const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
   if ((a > b ? a - b : b - a) > static_cast<std::size_t>(options_.support_window_keyframes)) return 0;
   const double chi2 = toro::loopClosureOdometryChi2(optimizer_.graph(), odometrySteps(), c, planar_);
   if (!(chi2 >= 0.0)) return 0;
-  return chi2 <= supportThreshold() ? 1 : -1;
+  return chi2 <= threshold ? 1 : -1;
 }
 
 void MapOptimizer::judgeSupport(std::size_t c) {
   if (!supportEnabled()) return;
   const bool scale_was_known = pairs_tested_ >= kMinPairsToAdaptSupport;
   // Ends a few keyframes apart: the odometry between them decides (a short chain is precise).
-  const int verdict = odometryVerdict(c);
+  const int verdict = odometryVerdict(c, supportThreshold());
   const std::vector<std::size_t> partners = verdict == 0 ? consistentPartners(c, true) : std::vector<std::size_t>{};
   const bool supported = verdict > 0 || (verdict == 0 && (partners.size() >= kMinPartners || agreesWithMap(c)));
   if (!supported) {
@@ -359,8 +359,10 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   if (scale_was_known || pairs_tested_ < kMinPairsToAdaptSupport) return;
   // The threshold has just learnt the sender's scale: the loop closures held while it could not
   // judge pairs (the first revisit) are judged again.
+  const double threshold = supportThreshold();
   for (std::size_t h = 0; h < is_loop_closure_.size(); ++h)
-    if (is_loop_closure_[h] && optimizer_.weightCap(h) < 1.0 && odometryVerdict(h) == 0 && supportedByPartners(h))
+    if (is_loop_closure_[h] && optimizer_.weightCap(h) < 1.0 && odometryVerdict(h, threshold) == 0 &&
+        supportedByPartners(h))
       release(h);
 }
 
@@ -368,7 +370,7 @@ bool MapOptimizer::releaseAgreed() {
   if (!supportEnabled()) return false;
   bool any = false;
   for (std::size_t c = 0; c < is_loop_closure_.size(); ++c) {
-    if (!is_loop_closure_[c] || !(optimizer_.weightCap(c) < 1.0) || !agreesWithMap(c) || odometryVerdict(c) < 0)
+    if (!is_loop_closure_[c] || !(optimizer_.weightCap(c) < 1.0) || !agreesWithMap(c) || odometryVerdict(c, supportThreshold()) < 0)
       continue;
     release(c);
     any = true;
@@ -380,7 +382,7 @@ void MapOptimizer::judgeAllSupport() {
   if (!supportEnabled()) return;
   for (std::size_t c = 0; c < is_loop_closure_.size(); ++c)
     if (is_loop_closure_[c]) {
-      const int verdict = odometryVerdict(c);
+      const int verdict = odometryVerdict(c, supportThreshold());
       if (verdict > 0 || (verdict == 0 && (supportedByPartners(c) || agreesWithMap(c)))) continue;
       optimizer_.setWeightCap(c, 0.0);
     }

@@ -211,7 +211,9 @@ class MapOptimizer {
   double supportThreshold() const;
   // Ends within the support window: +1 the odometry between them agrees, -1 it contradicts; 0
   // farther apart (or not connected by odometry): the odometry cannot tell.
-  int odometryVerdict(std::size_t c);
+  // `threshold`: supportThreshold(), taken once by the caller (it sorts the tested pairs' sample,
+  // and the partner search asks for every candidate).
+  int odometryVerdict(std::size_t c, double threshold);
   // The loop closures near c that agree with it (`record`: its tests feed the threshold's
   // statistic, for a new arrival only), and whether there are enough of them.
   std::vector<std::size_t> consistentPartners(std::size_t c, bool record);
