@@ -111,6 +111,30 @@ double loopClosureOdometryChi2(const PoseGraph& graph, const std::vector<std::si
   return cycleChi2(compose(inverse(measurementOf(k, planar)), o_ab), planar);
 }
 
+double loopClosureChainChi2(const PoseGraph& graph, std::size_t c, const std::vector<ChainLink>& chain, bool planar) {
+  const Constraint& k = graph.constraints()[c];
+  std::size_t at = graph.indexOf(k.from);
+  UncertainPose walked{Pose3(), Matrix6::Zero()};
+  for (const ChainLink& link : chain) {
+    if (!(link.weight > 0.0) || link.constraint >= graph.numConstraints()) return -1.0;
+    const Constraint& l = graph.constraints()[link.constraint];
+    UncertainPose step = measurementOf(l, planar);
+    step.covariance /= link.weight;
+    const std::size_t from = graph.indexOf(l.from), to = graph.indexOf(l.to);
+    if (from == at) {
+      at = to;
+    } else if (to == at) {
+      step = inverse(step);
+      at = from;
+    } else {
+      return -1.0;
+    }
+    walked = compose(walked, step);
+  }
+  if (at != graph.indexOf(k.to)) return -1.0;
+  return cycleChi2(compose(inverse(measurementOf(k, planar)), walked), planar);
+}
+
 namespace {
 
 double cycleChi2(const UncertainPose& cycle, bool planar) {

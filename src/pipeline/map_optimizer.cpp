@@ -65,6 +65,18 @@ constexpr double kSupportScaleQuantile = 0.2;
 // agree by chance now and then (1000 random ones on intel: two sharing an end and a borrowed
 // measurement), three far more rarely; a right one of a revisit has more.
 constexpr std::size_t kMinPartners = 2;
+// A loop closure weighted below this on the map's tree path is no evidence there (mapPathVerdict
+// cannot tell): its covariance would be inflated past meaning.
+constexpr double kPathLinkMinWeight = 0.1;
+// The map's path vetoes partners' support only when its cycle exceeds this many times the 0.99
+// quantile at the paths' own scale: the veto overrules evidence, so it must be beyond doubt (the
+// wrong groups of bench/robust_offline_results.md lie 20 to 10,000 times above that scale).
+constexpr double kPathLenience = 10.0;
+// Paths tested before the veto applies (its scale is unknown until then).
+constexpr std::size_t kMinPathsToVeto = 10;
+// Longer tree paths are not composed (the cost is linear in the links): so long a path is
+// compliant, so it would seldom veto.
+constexpr std::size_t kMaxPathLinks = 5000;
 // Held loop closures with none released after this many: said once, with the parameter to change.
 constexpr std::uint64_t kHeldBeforeAdvice = 20;
 
@@ -316,7 +328,65 @@ std::vector<std::size_t> MapOptimizer::consistentPartners(std::size_t c, bool re
 }
 
 bool MapOptimizer::supportedByPartners(std::size_t c) {
-  return consistentPartners(c, false).size() >= kMinPartners;
+  return consistentPartners(c, false).size() >= kMinPartners && mapPathVerdict(c, false) >= 0;
+}
+
+double MapOptimizer::mapPathChi2(std::size_t c) {
+  const toro::ParameterTree& tree = optimizer_.tree();
+  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
+  if (tree.path(a, b, path_up_, path_down_) == toro::ParameterTree::kNone) return -1.0;
+  if (path_up_.size() + path_down_.size() > kMaxPathLinks) return -1.0;
+  // The link between a node and its tree parent: the weightiest constraint between them that
+  // counts (a held loop closure is not evidence; c is what is judged).
+  bool through_loop_closure = false;
+  const auto link = [&](std::size_t child) {
+    const std::size_t parent = tree.parent(child);
+    toro::ChainLink best{0, 0.0};
+    for (std::size_t j : optimizer_.incident(child)) {
+      if (j == c || optimizer_.weightCap(j) < 1.0) continue;
+      if ((optimizer_.fromIndex(j) == child ? optimizer_.toIndex(j) : optimizer_.fromIndex(j)) != parent) continue;
+      const double w = is_loop_closure_[j] ? optimizer_.weights()[j] : 1.0;
+      if (w > best.weight) best = {j, w};
+    }
+    if (!(best.weight >= kPathLinkMinWeight)) return false;
+    if (is_loop_closure_[best.constraint]) through_loop_closure = true;
+    path_links_.push_back(best);
+    return true;
+  };
+  path_links_.clear();
+  for (std::size_t u : path_up_)
+    if (!link(u)) return -1.0;
+  const std::size_t up_links = path_links_.size();
+  for (std::size_t w : path_down_)
+    if (!link(w)) return -1.0;
+  if (!through_loop_closure) return -1.0;
+  std::reverse(path_links_.begin() + static_cast<std::ptrdiff_t>(up_links), path_links_.end());  // top -> b
+  return toro::loopClosureChainChi2(optimizer_.graph(), c, path_links_, planar_);
+}
+
+double MapOptimizer::mapPathThreshold() const {
+  if (tested_path_chi2_.size() < kMinPathsToVeto) return std::numeric_limits<double>::infinity();
+  // The scale of the paths' cycles, from the low quantile of those tested (as the pairs' scale,
+  // and for the same reason: robust to a majority of wrong ones), widening as well as narrowing:
+  // a path is longer than a pair's odometry, so a biased odometry (a wheel radius off by a few
+  // per cent) adds to it what no declared covariance covers, on right loop closures too.
+  std::vector<double> sample = tested_path_chi2_;
+  const auto low = sample.begin() + static_cast<std::ptrdiff_t>(sample.size() * kSupportScaleQuantile);
+  std::nth_element(sample.begin(), low, sample.end());
+  const double dof = planar_ ? 3.0 : 6.0;
+  return kPathLenience * toro::chiSquareQuantile(kSupportConfidence, dof) * *low /
+         toro::chiSquareQuantile(kSupportScaleQuantile, dof);
+}
+
+int MapOptimizer::mapPathVerdict(std::size_t c, bool record) {
+  const double chi2 = mapPathChi2(c);
+  if (!(chi2 >= 0.0)) return 0;
+  if (record) {
+    if (tested_path_chi2_.size() < kPairSample) tested_path_chi2_.push_back(chi2);
+    else tested_path_chi2_[paths_tested_ % kPairSample] = chi2;
+    ++paths_tested_;
+  }
+  return chi2 <= mapPathThreshold() ? 1 : -1;
 }
 
 void MapOptimizer::release(std::size_t c) {
@@ -343,7 +413,9 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   // Ends a few keyframes apart: the odometry between them decides (a short chain is precise).
   const int verdict = odometryVerdict(c, supportThreshold());
   const std::vector<std::size_t> partners = verdict == 0 ? consistentPartners(c, true) : std::vector<std::size_t>{};
-  const bool supported = verdict > 0 || (verdict == 0 && (partners.size() >= kMinPartners || agreesWithMap(c)));
+  // Every arrival the odometry cannot judge feeds the path statistic, agreeing with the map or not.
+  const int path = verdict == 0 ? mapPathVerdict(c, true) : 0;
+  const bool supported = verdict > 0 || (verdict == 0 && ((partners.size() >= kMinPartners && path >= 0) || agreesWithMap(c)));
   if (!supported) {
     optimizer_.setWeightCap(c, 0.0);
     ++counters_->loop_closures_held;
@@ -690,6 +762,8 @@ void MapOptimizer::clear() {
   odometry_steps_.clear();
   tested_pair_chi2_.clear();
   pairs_tested_ = 0;
+  tested_path_chi2_.clear();
+  paths_tested_ = 0;
   finish_due_ = false;
   last_finish_stamp_ = ros::Time();
   finished_chi2_ = kNaN;

@@ -41,4 +41,21 @@ double loopClosurePairChi2(const PoseGraph& graph, const std::vector<std::size_t
 double loopClosureOdometryChi2(const PoseGraph& graph, const std::vector<std::size_t>& odometry_steps, std::size_t c,
                                bool planar);
 
+// One link of a chain of constraints: the constraint and the factor its information counts with
+// (a robust weight: its covariance is divided by it).
+struct ChainLink {
+  std::size_t constraint = 0;
+  double weight = 1.0;
+};
+
+// The chi2 of loop closure `c` against a chain of other constraints that walks from its `from`
+// node to its `to` node (each link entered at either end): the cycle Z^-1 L_1 ... L_n, the links'
+// covariances carried into one frame.  With the tree path of the constraints that count in the map
+// as the chain, this asks the map's evidence rather than the odometry's: where accepted loop
+// closures made the path between two places short and stiff, a claim far from it contradicts
+// them, however many neighbours repeat it (a place recogniser's repeated confusion).  An upper
+// bound of the map's uncertainty (one path, not every path), so it errs towards agreeing.  -1 when
+// the links do not walk from `from` to `to`, or a weight is not positive.  Cost: linear in the links.
+double loopClosureChainChi2(const PoseGraph& graph, std::size_t c, const std::vector<ChainLink>& chain, bool planar);
+
 }  // namespace toro

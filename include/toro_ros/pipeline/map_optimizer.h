@@ -21,6 +21,7 @@
 
 #include <ros/time.h>
 
+#include "toro_ros/core/loop_closure_pairs.h"
 #include "toro_ros/core/pose_graph.h"
 #include "toro_ros/core/robust_kernel.h"
 #include "toro_ros/core/sparse_finisher.h"
@@ -214,6 +215,17 @@ class MapOptimizer {
   // `threshold`: supportThreshold(), taken once by the caller (it sorts the tested pairs' sample,
   // and the partner search asks for every candidate).
   int odometryVerdict(std::size_t c, double threshold);
+  // The map's evidence between c's ends: the chi2 of c's cycle with the tree path through the
+  // constraints that count now (odometry and loop closures not held, each by its weight;
+  // toro::loopClosureChainChi2), or -1 when the path is odometry alone (its drift is what loop
+  // closures correct, and the odometry tests judge it), too long, or has a tree edge without such
+  // a constraint.  mapPathVerdict: -1 the path contradicts c (beyond mapPathThreshold), +1 it
+  // agrees, 0 it cannot tell; `record` feeds the threshold's statistic (a new arrival).
+  // Partners' support cannot overrule -1: a wrong claim repeated along a revisit (a recogniser
+  // confusing two places) agrees with itself, not with the loop closures accepted between them.
+  double mapPathChi2(std::size_t c);
+  double mapPathThreshold() const;
+  int mapPathVerdict(std::size_t c, bool record);
   // The loop closures near c that agree with it (`record`: its tests feed the threshold's
   // statistic, for a new arrival only), and whether there are enough of them.
   std::vector<std::size_t> consistentPartners(std::size_t c, bool record);
@@ -238,6 +250,11 @@ class MapOptimizer {
   double weighted_chi2_;
   std::vector<std::size_t> odometry_steps_;  // per node: toro::odometrySteps, grown lazily
   std::vector<double> tested_pair_chi2_;     // cycles of loop closures tested (support)
+  // mapPathVerdict's scratch (the tree path's nodes and links), kept to spare an allocation a call.
+  std::vector<std::size_t> path_up_, path_down_;
+  std::vector<toro::ChainLink> path_links_;
+  std::vector<double> tested_path_chi2_;  // mapPathChi2 of arrivals (a ring like tested_pair_chi2_)
+  std::size_t paths_tested_ = 0;
   std::size_t pairs_tested_ = 0;
   double last_optimization_sec_ = 0.0;
   std::uint64_t revision_ = 0;
