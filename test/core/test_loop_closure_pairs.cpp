@@ -134,3 +134,34 @@ TEST(LoopClosurePairs, OdometryDecidesNearbyLoopClosures) {
   const std::vector<bool> all_loop_closures(c.graph.numConstraints(), true);
   EXPECT_EQ(loopClosureOdometryChi2(c.graph, odometrySteps(c.graph, all_loop_closures), right, false), -1.0);
 }
+
+TEST(LoopClosurePairs, ChainThroughAnAcceptedLoopClosureIsStifferThanTheOdometry) {
+  // Nodes 0..19 out, 20..39 back along the same line.  A right loop closure 15 -> 24 makes the
+  // path from 10 to 30 short: 10 -> 15 (odometry), 15 -> 24 (a precise loop closure), 24 -> 30.
+  Corridor c = corridor(false);
+  const std::size_t shortcut = c.graph.addConstraint({15, 24, relativePose(c.truth[15], c.truth[24]),
+                                                      informationOf(0.01, 0.002), ConstraintKind::kLoopClosure});
+  const std::size_t claim = addLoopClosure(c, 10, 30, Pose3::fromRollPitchYaw(1.0, 0, 0, 0, 0, 0));  // 1 m off
+  std::vector<ChainLink> chain;
+  for (std::size_t k = 10; k < 15; ++k) chain.push_back({k, 1.0});  // odometry k -> k + 1 is constraint k
+  chain.push_back({shortcut, 1.0});
+  for (std::size_t k = 24; k < 30; ++k) chain.push_back({k, 1.0});
+  const double through_loop_closure = loopClosureChainChi2(c.graph, claim, chain, false);
+  std::vector<ChainLink> odometry;
+  for (std::size_t k = 10; k < 30; ++k) odometry.push_back({k, 1.0});
+  const double along_odometry = loopClosureChainChi2(c.graph, claim, odometry, false);
+  // The odometry chain equals the odometry test; the shorter chain contradicts the claim more.
+  EXPECT_NEAR(along_odometry, loopClosureOdometryChi2(c.graph, odometrySteps(c.graph, {}), claim, false),
+              1e-9 * along_odometry);
+  EXPECT_GT(through_loop_closure, 1.5 * along_odometry);
+  // A right claim agrees with either chain; a weight below 1 widens a link (less contradiction).
+  const std::size_t right = addLoopClosure(c, 10, 30);
+  EXPECT_NEAR(loopClosureChainChi2(c.graph, right, chain, false), 0.0, 1e-9);
+  std::vector<ChainLink> weak = chain;
+  weak[5].weight = 0.01;
+  EXPECT_LT(loopClosureChainChi2(c.graph, claim, weak, false), through_loop_closure);
+  // Links that do not walk from 10 to 30, or a weight of 0: cannot tell.
+  EXPECT_EQ(loopClosureChainChi2(c.graph, claim, std::vector<ChainLink>(chain.begin() + 1, chain.end()), false), -1.0);
+  weak[5].weight = 0.0;
+  EXPECT_EQ(loopClosureChainChi2(c.graph, claim, weak, false), -1.0);
+}
