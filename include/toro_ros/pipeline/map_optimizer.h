@@ -26,6 +26,7 @@
 #include "toro_ros/core/robust_kernel.h"
 #include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/core/tree_optimizer.h"
+#include "toro_ros/pipeline/recent_chi2.h"
 #include "toro_ros/pipeline/snapshot.h"
 
 namespace toro_ros {
@@ -249,13 +250,13 @@ class MapOptimizer {
   // set-aside weight left out): what a finish minimises, so what the tolerance compares.
   double weighted_chi2_;
   std::vector<std::size_t> odometry_steps_;  // per node: toro::odometrySteps, grown lazily
-  std::vector<double> tested_pair_chi2_;     // cycles of loop closures tested (support)
   // mapPathVerdict's scratch (the tree path's nodes and links), kept to spare an allocation a call.
   std::vector<std::size_t> path_up_, path_down_;
   std::vector<toro::ChainLink> path_links_;
-  std::vector<double> tested_path_chi2_;  // mapPathChi2 of arrivals (a ring like tested_pair_chi2_)
-  std::size_t paths_tested_ = 0;
-  std::size_t pairs_tested_ = 0;
+  // The support thresholds' statistics: cycles of loop-closure pairs tested, and mapPathChi2 of
+  // arrivals (robust to a majority of wrong ones: a low quantile).
+  RecentChi2 tested_pairs_;
+  RecentChi2 tested_paths_;
   double last_optimization_sec_ = 0.0;
   std::uint64_t revision_ = 0;
   // Schedule state (message time, never wall time).
