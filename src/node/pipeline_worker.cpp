@@ -38,10 +38,10 @@ void PipelineWorker::startFinishIfDue() {
     // The merge is a command like any other: it runs between passes, on the worker thread, and
     // the snapshot published after it is the first to show the finished map.  A merge queued
     // after stop() is simply never run.
-    queue_.pushAlways(Item(Command([this, outcome](Pipeline& pipeline) {
+    post([this, outcome](Pipeline& pipeline) {
       finish_running_ = false;
       pipeline.mergeFinish(*outcome);
-    })));
+    });
   });
 }
 
@@ -70,10 +70,9 @@ void PipelineWorker::publishSnapshot() {
 
 void PipelineWorker::process(Item& item) {
   if (auto* command = std::get_if<Command>(&item)) {
+    // Commands change the map (reset, load, optimise) or are asked about it: each publishes a
+    // snapshot at once (call, post), not at the next message.
     (*command)(*pipeline_);
-    // Commands change the map (reset, load, optimise) or are asked about it: publish at once,
-    // not at the next message.
-    publishSnapshot();
   } else {
     feedPipeline(*pipeline_, std::get<PipelineMessage>(item));
   }

@@ -55,7 +55,12 @@ class PipelineWorker {
   std::optional<R> call(std::function<R(Pipeline&)> f, std::chrono::duration<double> timeout);
   // Runs `f` on the worker between passes without waiting for it (never dropped); a snapshot is
   // published after it, as after every command.
-  void post(Command f) { queue_.pushAlways(Item(std::move(f))); }
+  void post(Command f) {
+    queue_.pushAlways(Item(Command([this, f = std::move(f)](Pipeline& pipeline) {
+      f(pipeline);
+      publishSnapshot();
+    })));
+  }
 
   // The newest published state; never blocks on the worker.
   std::shared_ptr<const Snapshot> snapshot() const;
@@ -94,10 +99,15 @@ template <class R>
 std::optional<R> PipelineWorker::call(std::function<R(Pipeline&)> f, std::chrono::duration<double> timeout) {
   auto promise = std::make_shared<std::promise<R>>();
   std::future<R> result = promise->get_future();
-  queue_.pushAlways(Item(Command([promise, f = std::move(f)](Pipeline& pipeline) {
+  queue_.pushAlways(Item(Command([this, promise, f = std::move(f)](Pipeline& pipeline) {
+    // The snapshot is published before the answer: a caller that reads it after the answer sees
+    // what the command did (and every message queued before it).
     try {
-      promise->set_value(f(pipeline));
+      R answer = f(pipeline);
+      publishSnapshot();
+      promise->set_value(std::move(answer));
     } catch (...) {
+      publishSnapshot();
       promise->set_exception(std::current_exception());
     }
   })));
