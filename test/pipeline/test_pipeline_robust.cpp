@@ -314,3 +314,34 @@ TEST(PipelineSupport, LoneLoopClosuresThatNeverFindSupportAreAdvisedOnceWithTheP
   for (const std::string& w : warnings) advice += w.find("robust_hold_until_supported: false") != std::string::npos;
   EXPECT_EQ(advice, 1u);
 }
+
+TEST(PipelineSupport, WrongLoopClosuresThatAgreeWithEachOtherButNotWithTheMapStayHeld) {
+  // Lap 2 revisits lap 1: twelve right loop closures (held until the pair threshold knows the
+  // scale, then released), then twelve more whose tree paths run through those, feeding the map's
+  // path statistic its 10 paths.  Then three far-apart claims agreeing with each other: that 80 on
+  // lap 1 and the revisit's own place are the same (3.4 m apart in truth).  Their partners agree,
+  // but the map's path between their ends runs through the accepted loop closures and contradicts
+  // them: they stay held and move nothing.  (With fewer than 10 paths tested the veto does not
+  // apply yet, and these three release each other: 0.24 m of bending.)
+  const DriftScenario sc = makeDriftingSquare(2);
+  const std::size_t revisit = corner(1, 0) + 60;
+  Pipeline p(withSupport());
+  for (std::size_t i = 0; i <= revisit + 80; ++i) p.handleOdometry(sc.odometry[i]);
+  for (const LoopClosure& lc : toro_ros::testing::revisitLoopClosures(sc, 5, revisit, 12)) p.handleLoopClosure(lc);
+  drain(p);
+  for (const LoopClosure& lc : toro_ros::testing::revisitLoopClosures(sc, 65, revisit + 60, 12)) p.handleLoopClosure(lc);
+  drain(p);
+  const std::uint64_t held = p.status().counters.loop_closures_held;
+  const std::uint64_t released = p.status().counters.loop_closures_released;
+  EXPECT_EQ(held, released);  // every right one counts
+  const auto before = p.makeSnapshot();
+  LoopClosure first = trueLoopClosure(sc, 80, revisit - 5);
+  first.from_T_to = poseToMsg(toro::Pose3());  // "the same place"
+  p.handleLoopClosure(first);
+  p.handleLoopClosure(consistentWith(sc, first, 85, revisit));
+  p.handleLoopClosure(consistentWith(sc, first, 90, revisit + 5));
+  drain(p);
+  EXPECT_EQ(p.status().counters.loop_closures_held - held, 3u);
+  EXPECT_EQ(p.status().counters.loop_closures_released - released, 0u);
+  EXPECT_LT(largestMove(*before, *p.makeSnapshot()), 1e-12);
+}
