@@ -5,6 +5,7 @@
 // (3) the final corrected pose on /tf (map -> base_link) is near the truth's final pose.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <filesystem>
 
@@ -91,10 +92,16 @@ TEST_F(ReplaySample, LiveNodeAndOfflineRunnerGiveTheSameGraph) {
     max_position = std::max(max_position, (a.translation() - b.translation()).norm());
     max_angle = std::max(max_angle, toro::relativePose(a, b).angle());
   }
-  for (std::size_t c = 0; c < live.graph.numConstraints(); ++c) {
-    EXPECT_EQ(live.graph.constraints()[c].from, offline.graph.constraints()[c].from) << c;
-    EXPECT_EQ(live.graph.constraints()[c].to, offline.graph.constraints()[c].to) << c;
-  }
+  // The same constraints, in any order: the node takes odometry and loop closures from two topics,
+  // so on a busy machine a loop closure may join the graph a few keyframes later than offline
+  // (seen in CI-like runs beside a build: the lists were shifted by one from index 52 on).
+  const auto endpoints = [](const toro::PoseGraph& g) {
+    std::vector<std::pair<toro::NodeId, toro::NodeId>> out;
+    for (const toro::Constraint& k : g.constraints()) out.emplace_back(k.from, k.to);
+    std::sort(out.begin(), out.end());
+    return out;
+  };
+  EXPECT_EQ(endpoints(live.graph), endpoints(offline.graph));
   EXPECT_LT(max_position, kPositionTolerance);
   EXPECT_LT(max_angle, kAngleTolerance);
   RecordProperty("max_position_difference_m", std::to_string(max_position));
