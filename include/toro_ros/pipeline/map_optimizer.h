@@ -216,16 +216,21 @@ class MapOptimizer {
   // `threshold`: supportThreshold(), taken once by the caller (it sorts the tested pairs' sample,
   // and the partner search asks for every candidate).
   int odometryVerdict(std::size_t c, double threshold);
-  // The map's evidence between c's ends: the chi2 of c's cycle with the tree path through the
-  // constraints that count now (odometry and loop closures not held, each by its weight;
-  // toro::loopClosureChainChi2), or -1 when the path is odometry alone (its drift is what loop
-  // closures correct, and the odometry tests judge it), too long, or has a tree edge without such
-  // a constraint.  mapPathVerdict: -1 the path contradicts c (beyond mapPathThreshold), +1 it
-  // agrees, 0 it cannot tell; `record` feeds the threshold's statistic (a new arrival).
-  // Partners' support cannot overrule -1: a wrong claim repeated along a revisit (a recogniser
-  // confusing two places) agrees with itself, not with the loop closures accepted between them.
+  // The evidence between c's two places.  mapPathChi2: the chi2 of c's cycle with the tree path
+  // through the constraints that count now (odometry and loop closures not held, each by its
+  // weight; toro::loopClosureChainChi2), -1 when the path is odometry alone (odometryCycleChi2
+  // then), too long, or has a tree edge without such a constraint.
+  // odometryCycleChi2: c's cycle with the odometry over its whole span (toro::
+  // loopClosureOdometryChi2; cached per constraint until the structure changes), -1 when the
+  // odometry does not connect its ends or the span exceeds the path limit.  mapPathVerdict: -1 the
+  // evidence contradicts c (beyond mapPathThreshold), +1 it agrees, 0 it cannot tell; `record`
+  // feeds the thresholds' statistics (a new arrival).  A path through accepted loop closures
+  // decides when it is clear; otherwise the odometry does.  Partners' support cannot overrule -1:
+  // a wrong claim repeated along a revisit (a recogniser confusing two places) agrees with
+  // itself, not with the odometry or the loop closures accepted between the two places.
   double mapPathChi2(std::size_t c);
-  double mapPathThreshold() const;
+  double odometryCycleChi2(std::size_t c);
+  double mapPathThreshold(bool through_loop_closure) const;
   int mapPathVerdict(std::size_t c, bool record);
   // The loop closures near c that agree with it (`record`: its tests feed the threshold's
   // statistic, for a new arrival only), and whether there are enough of them.
@@ -257,6 +262,10 @@ class MapOptimizer {
   // arrivals (robust to a majority of wrong ones: a low quantile).
   RecentChi2 tested_pairs_;
   RecentChi2 tested_paths_;
+  RecentChi2 tested_odometry_paths_;
+  // odometryCycleChi2's cache (NaN: not computed) and the structure it belongs to.
+  std::vector<double> odometry_cycle_chi2_;
+  std::uint64_t odometry_cycle_structure_ = 0;
   double last_optimization_sec_ = 0.0;
   std::uint64_t revision_ = 0;
   // Schedule state (message time, never wall time).
