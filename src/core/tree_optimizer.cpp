@@ -385,7 +385,7 @@ std::vector<std::size_t> TreeOptimizer::sortedByTopLevel(std::vector<std::size_t
   return constraints;
 }
 
-IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteration) {
+IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteration, std::size_t settled) {
   if (learning_rate_iteration <= 1) {
     new_constraints_.erase(new_constraints_.begin(),
                            new_constraints_.begin() + static_cast<std::ptrdiff_t>(covered_new_));
@@ -403,7 +403,8 @@ IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteratio
     tree_.path(from_index_[c], to_index_[c], up_, down_);
     for (const auto* branch : {&up_, &down_}) {
       for (std::size_t v : *branch) {
-        for (std::size_t other : incident_[v]) mark(other);
+        for (std::size_t other : incident_[v])
+          if (other >= settled) mark(other);
       }
     }
   }
