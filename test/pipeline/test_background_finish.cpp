@@ -68,7 +68,7 @@ TEST(BackgroundFinish, MergedFinishIsTheOptimumAndTorosPassWasNot) {
   const FinishOutcome outcome = runFinishJob(std::move(*job));
   ASSERT_TRUE(outcome.success) << outcome.error;
   EXPECT_TRUE(p.mergeFinish(outcome));
-  // A background finish stops at a relative decrease of 1e-5 per iteration (kBackgroundRelativeDecrease).
+  // A background finish stops at a relative decrease of 1e-4 per iteration (kBackgroundRelativeDecrease).
   EXPECT_NEAR(toro::g2oChi2(p.graph()), best_chi2, 1e-4 * best_chi2);
   EXPECT_LT(maxPositionDifference(p.graph(), best, best.numNodes()), 1e-3);
   const PipelineStatus s = p.status();
