@@ -130,6 +130,9 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
 
 void TreeOptimizer::setWeight(std::size_t c, double weight) {
   if (weight != robust_weight_[c]) {
+    // The cached covariances of the tree edges c may lie beside (innovation_scratch_).
+    innovation_scratch_.forget(from_index_[c]);
+    innovation_scratch_.forget(to_index_[c]);
     changes_.constraint(c, graph_.numConstraints());
     if (chi2_valid_) weighted_chi2_total_ -= weightedShare(c, chi2_[c]);
     robust_weight_[c] = weight;
@@ -188,6 +191,12 @@ double TreeOptimizer::kernelWeight(std::size_t c, double* judged_chi2) {
 
 std::size_t TreeOptimizer::refreshWeights(const std::vector<std::size_t>& constraints) {
   std::size_t changed = 0;
+  // Poses and the tree stay as they are below; setWeight forgets what a changed weight touches.
+  struct Batch {
+    InnovationScratch& scratch;
+    ~Batch() { scratch.endBatch(); }
+  } batch{innovation_scratch_};
+  if (constraints.size() > 1) innovation_scratch_.beginBatch(graph_.numNodes());
   for (std::size_t c : constraints) {
     if (!robust_[c]) continue;
     double judged = 0.0;
