@@ -171,8 +171,8 @@ std::vector<int> fillReducingPositions(const SparseMatrix& pattern) {
 std::unique_ptr<SparseCholesky> makeSparseCholesky(LinearSolverType type) {
   switch (type) {
     case LinearSolverType::kSimplicialLDLT:
-      return std::make_unique<
-          EigenStyleCholesky<Eigen::SimplicialLDLT<SparseMatrix, Eigen::Upper, Eigen::NaturalOrdering<int>>>>();
+      return std::make_unique<EigenStyleCholesky<
+          Eigen::SimplicialLDLT<SparseMatrix, Eigen::Upper, Eigen::NaturalOrdering<int>>>>();
 #ifdef TORO_HAVE_CHOLMOD
     case LinearSolverType::kCholmodSupernodal:
       return std::make_unique<QuietCholmod<Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Upper>>>();

@@ -429,9 +429,10 @@ TEST(RobustTree, ABatchRefreshOfWeightsEqualsOneRefreshPerLoopClosure) {
   for (std::size_t k = 0; k < loops.size(); ++k) {
     batch.addConstraint(loops[k], /*may_be_tree_edge=*/false);
     if (k != loops.size() / 2) continue;
-    beside = batch.addConstraint(Constraint{44, 45, relativePose(batch.graph().pose(44), batch.graph().pose(45)),
-                                            100.0 * Matrix6::Identity(), ConstraintKind::kLoopClosure},
-                                 /*may_be_tree_edge=*/false);
+    beside =
+        batch.addConstraint(Constraint{44, 45, relativePose(batch.graph().pose(44), batch.graph().pose(45)),
+                                       100.0 * Matrix6::Identity(), ConstraintKind::kLoopClosure},
+                            /*may_be_tree_edge=*/false);
   }
   const double beside_before = batch.weights()[beside];
   // Node 45 and the nodes after it 3 m aside: the loop closures across that edge, and the one
@@ -448,7 +449,8 @@ TEST(RobustTree, ABatchRefreshOfWeightsEqualsOneRefreshPerLoopClosure) {
   for (std::size_t c = 0; c < m; ++c) one_by_one.refreshWeights(std::vector<std::size_t>{c});
   ASSERT_GT(std::abs(batch.weights()[beside] - beside_before), 0.5) << "the scenario must change it";
   std::size_t partial = 0;  // loop closures after it with a weight strictly inside (0, 1)
-  for (std::size_t c = beside + 1; c < m; ++c) partial += batch.weights()[c] > 0.0 && batch.weights()[c] < 1.0;
+  for (std::size_t c = beside + 1; c < m; ++c)
+    partial += batch.weights()[c] > 0.0 && batch.weights()[c] < 1.0;
   ASSERT_GT(partial, 0u) << "the scenario must have weights that follow their path's covariance";
   for (std::size_t c = 0; c < m; ++c) EXPECT_EQ(batch.weights()[c], one_by_one.weights()[c]) << c;
 }

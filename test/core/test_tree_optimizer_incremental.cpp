@@ -282,11 +282,12 @@ TEST(TreeOptimizerIncremental, SettledConstraintsTouchingANewPathAreLeftAloneUnl
   TreeOptimizer opt;
   for (std::size_t v = 0; v < kNodes; ++v) {
     // Perturbed odometry, so every settled constraint has a residual a pass would act on.
-    const Pose3 noise = Pose3::fromRollPitchYaw(0.02 * std::sin(3.0 * v), 0.01 * std::cos(v), 0, 0, 0, 0.01 * std::sin(v));
+    const Pose3 noise =
+        Pose3::fromRollPitchYaw(0.02 * std::sin(3.0 * v), 0.01 * std::cos(v), 0, 0, 0, 0.01 * std::sin(v));
     opt.addNode(static_cast<NodeId>(v), v == 0 ? Pose3() : opt.graph().node(v - 1).pose * step * noise);
     if (v > 0)
-      opt.addConstraint(Constraint{static_cast<NodeId>(v - 1), static_cast<NodeId>(v), step, Matrix6::Identity(),
-                                   ConstraintKind::kOdometry});
+      opt.addConstraint(Constraint{static_cast<NodeId>(v - 1), static_cast<NodeId>(v), step,
+                                   Matrix6::Identity(), ConstraintKind::kOdometry});
   }
   opt.addConstraint(Constraint{0, 30, Pose3(), Matrix6::Identity(), ConstraintKind::kLoopClosure});
   for (int i = 0; i < 3; ++i) opt.iterate();
@@ -297,9 +298,9 @@ TEST(TreeOptimizerIncremental, SettledConstraintsTouchingANewPathAreLeftAloneUnl
                                Matrix6::Identity(), ConstraintKind::kOdometry});
   const Pose3 measured = opt.graph().node(kTop).pose.inverse() * opt.graph().node(kNodes).pose *
                          Pose3::fromRollPitchYaw(0.2, -0.1, 0.05, 0.02, 0, 0.05);
-  const std::size_t lc = opt.addConstraint(
-      Constraint{static_cast<NodeId>(kTop), static_cast<NodeId>(kNodes), measured, 10 * Matrix6::Identity(),
-                 ConstraintKind::kLoopClosure});
+  const std::size_t lc =
+      opt.addConstraint(Constraint{static_cast<NodeId>(kTop), static_cast<NodeId>(kNodes), measured,
+                                   10 * Matrix6::Identity(), ConstraintKind::kLoopClosure});
   const PoseGraph before = opt.graph();
 
   // The same pass by hand: the newer constraints alone (the odometry first, as the pass orders
