@@ -79,7 +79,26 @@ std::size_t aroundLoopClosure(const TreeOptimizer& opt, std::size_t end, std::si
   return u;
 }
 
+// edgeCovariance(v, parent p, leaving out c), from the batch's cache when c is not between them.
+Matrix6 treeEdgeCovariance(const TreeOptimizer& opt, std::size_t v, std::size_t p, std::size_t c,
+                           InnovationScratch& scratch) {
+  const std::size_t from = opt.fromIndex(c), to = opt.toIndex(c);
+  const bool c_on_edge = (from == v && to == p) || (from == p && to == v);
+  if (!scratch.caching || c_on_edge || v >= scratch.valid.size()) return edgeCovariance(opt, v, p, c);
+  if (!scratch.valid[v]) {
+    scratch.edge_covariance[v] = edgeCovariance(opt, v, p, ParameterTree::kNone);
+    scratch.valid[v] = 1;
+  }
+  return scratch.edge_covariance[v];
+}
+
 }  // namespace
+
+void InnovationScratch::beginBatch(std::size_t nodes) {
+  caching = true;
+  valid.assign(nodes, 0);
+  if (edge_covariance.size() < nodes) edge_covariance.resize(nodes);
+}
 
 double loopClosureInnovationChi2(const TreeOptimizer& opt, std::size_t c, InnovationScratch& scratch) {
   const PoseGraph& g = opt.graph();
@@ -95,7 +114,7 @@ double loopClosureInnovationChi2(const TreeOptimizer& opt, std::size_t c, Innova
   Matrix6 total = around_b + ad_a * around_a * ad_a.transpose();
   for (const auto* branch : {&scratch.up, &scratch.down}) {
     for (std::size_t v : *branch) {
-      const Matrix6 edge = edgeCovariance(opt, v, opt.tree().parent(v), c);
+      const Matrix6 edge = treeEdgeCovariance(opt, v, opt.tree().parent(v), c, scratch);
       // Only down-weighted (or held) loop closures hold this edge: the path says nothing, and a
       // ~0 chi2 would pass for a measured agreement (it narrowed the adaptive width to nothing).
       if (!(edge(0, 0) < kUnconstrainedVariance)) return -1.0;

@@ -5,6 +5,7 @@
 #include <atomic>
 #include <string>
 
+#include <Eigen/OrderingMethods>
 #include <Eigen/SparseCholesky>
 #include <stdexcept>
 
@@ -126,6 +127,11 @@ class QuietCholmod : public EigenStyleCholesky<Solver> {
   // The thread count of setSolverThreads reaches OpenMP here, in the thread that factorises.
   QuietCholmod() {
     this->solver_.cholmod().print = 0;
+    // The finish hands over its matrix in a fill-reducing order of its blocks (FinishProblem::
+    // orderBlocks): CHOLMOD keeps it (and only postorders its elimination tree) instead of trying
+    // AMD on the scalar pattern, which took most of the analysis (bench/background_finish_results.md).
+    this->solver_.cholmod().nmethods = 1;
+    this->solver_.cholmod().method[0].ordering = CHOLMOD_NATURAL;
     const int threads = solverThreads();
     applyOpenMp(threads);
 #if CHOLMOD_MAIN_VERSION >= 5
@@ -138,10 +144,35 @@ class QuietCholmod : public EigenStyleCholesky<Solver> {
 
 }  // namespace
 
+std::vector<int> fillReducingPositions(const SparseMatrix& pattern) {
+  const int n = static_cast<int>(pattern.rows());
+  std::vector<int> eliminated(static_cast<std::size_t>(n));  // eliminated[k]: the k-th to go
+#ifdef TORO_HAVE_CHOLMOD
+  SparseMatrix a = pattern;
+  a.makeCompressed();
+  cholmod_common common;
+  cholmod_start(&common);
+  common.print = 0;
+  cholmod_sparse view = Eigen::viewAsCholmod(a);
+  view.stype = 1;  // symmetric: its upper triangle is read (unsymmetric, AMD would order A A^T)
+  const bool ok = cholmod_amd(&view, nullptr, 0, eliminated.data(), &common) != 0;
+  cholmod_finish(&common);
+  if (!ok) throw std::runtime_error("sparse finish: AMD ordering failed");
+#else
+  Eigen::PermutationMatrix<Eigen::Dynamic, Eigen::Dynamic, int> order;
+  Eigen::AMDOrdering<int>()(pattern, order);  // the inverse permutation: indices()[k] goes k-th
+  for (int k = 0; k < n; ++k) eliminated[static_cast<std::size_t>(k)] = order.indices()[k];
+#endif
+  std::vector<int> position(static_cast<std::size_t>(n));
+  for (int k = 0; k < n; ++k) position[static_cast<std::size_t>(eliminated[static_cast<std::size_t>(k)])] = k;
+  return position;
+}
+
 std::unique_ptr<SparseCholesky> makeSparseCholesky(LinearSolverType type) {
   switch (type) {
     case LinearSolverType::kSimplicialLDLT:
-      return std::make_unique<EigenStyleCholesky<Eigen::SimplicialLDLT<SparseMatrix, Eigen::Upper>>>();
+      return std::make_unique<EigenStyleCholesky<
+          Eigen::SimplicialLDLT<SparseMatrix, Eigen::Upper, Eigen::NaturalOrdering<int>>>>();
 #ifdef TORO_HAVE_CHOLMOD
     case LinearSolverType::kCholmodSupernodal:
       return std::make_unique<QuietCholmod<Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Upper>>>();

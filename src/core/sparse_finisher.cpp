@@ -46,14 +46,6 @@ std::vector<bool> heldNodes(const PoseGraph& graph) {
   return held;
 }
 
-int entryIndex(const SparseMatrix& m, int row, int col) {
-  const int* begin = m.innerIndexPtr() + m.outerIndexPtr()[col];
-  const int* end = m.innerIndexPtr() + m.outerIndexPtr()[col + 1];
-  const int* it = std::lower_bound(begin, end, row);
-  if (it == end || *it != row) throw std::logic_error("sparse finish: entry missing from the pattern");
-  return static_cast<int>(it - m.innerIndexPtr());
-}
-
 }  // namespace detail
 
 namespace {

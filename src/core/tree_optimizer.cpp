@@ -130,6 +130,9 @@ void TreeOptimizer::registerConstraint(std::size_t c) {
 
 void TreeOptimizer::setWeight(std::size_t c, double weight) {
   if (weight != robust_weight_[c]) {
+    // The cached covariances of the tree edges c may lie beside (innovation_scratch_).
+    innovation_scratch_.forget(from_index_[c]);
+    innovation_scratch_.forget(to_index_[c]);
     changes_.constraint(c, graph_.numConstraints());
     if (chi2_valid_) weighted_chi2_total_ -= weightedShare(c, chi2_[c]);
     robust_weight_[c] = weight;
@@ -188,6 +191,12 @@ double TreeOptimizer::kernelWeight(std::size_t c, double* judged_chi2) {
 
 std::size_t TreeOptimizer::refreshWeights(const std::vector<std::size_t>& constraints) {
   std::size_t changed = 0;
+  // Poses and the tree stay as they are below; setWeight forgets what a changed weight touches.
+  struct Batch {
+    InnovationScratch& scratch;
+    ~Batch() { scratch.endBatch(); }
+  } batch{innovation_scratch_};
+  if (constraints.size() > 1) innovation_scratch_.beginBatch(graph_.numNodes());
   for (std::size_t c : constraints) {
     if (!robust_[c]) continue;
     double judged = 0.0;
@@ -385,7 +394,7 @@ std::vector<std::size_t> TreeOptimizer::sortedByTopLevel(std::vector<std::size_t
   return constraints;
 }
 
-IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteration) {
+IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteration, std::size_t settled) {
   if (learning_rate_iteration <= 1) {
     new_constraints_.erase(new_constraints_.begin(),
                            new_constraints_.begin() + static_cast<std::ptrdiff_t>(covered_new_));
@@ -403,7 +412,8 @@ IterationStats TreeOptimizer::iterateAffected(std::size_t learning_rate_iteratio
     tree_.path(from_index_[c], to_index_[c], up_, down_);
     for (const auto* branch : {&up_, &down_}) {
       for (std::size_t v : *branch) {
-        for (std::size_t other : incident_[v]) mark(other);
+        for (std::size_t other : incident_[v])
+          if (other >= settled) mark(other);
       }
     }
   }

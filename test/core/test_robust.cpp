@@ -401,3 +401,56 @@ TEST(RobustOptimize, HundredRandomWrongLoopClosuresOnSmallGrid) {
     EXPECT_LT(alignedPositionRmse(result, clean), 0.05) << outlierKindName(kind);
   }
 }
+
+// A refresh of all weights caches the tree edges' covariances for the batch (InnovationScratch); a
+// weight that changes within it (here a loop closure beside a tree edge, halfway through the
+// list) must reach the loop closures after it whose paths cross that edge.  The batch gives, bit
+// for bit, the weights of one refresh per loop closure in the same order (no cache).
+TEST(RobustTree, ABatchRefreshOfWeightsEqualsOneRefreshPerLoopClosure) {
+  const SyntheticGraph s = twoLaps(5);
+  TreeOptimizerOptions options;
+  options.robust = dcs();
+  TreeOptimizer batch(options);
+  // The loop closures do not shape the tree, so it is the odometry chain and loop closure
+  // i -> i + 40 crosses the tree edge 44 -> 45 when 4 < i < 45.
+  std::vector<Constraint> loops;
+  for (const Node& n : s.graph.nodes()) batch.addNode(n.id, n.pose);
+  for (const Constraint& c : s.graph.constraints()) {
+    if (c.to == c.from + 1) {
+      batch.addConstraint(c);
+    } else {
+      loops.push_back(c);
+      loops.back().kind = ConstraintKind::kLoopClosure;
+    }
+  }
+  ASSERT_GE(loops.size(), 8u);
+  // Halfway through the loop closures, one beside the tree edge 44 -> 45, agreeing with the poses.
+  std::size_t beside = 0;
+  for (std::size_t k = 0; k < loops.size(); ++k) {
+    batch.addConstraint(loops[k], /*may_be_tree_edge=*/false);
+    if (k != loops.size() / 2) continue;
+    beside =
+        batch.addConstraint(Constraint{44, 45, relativePose(batch.graph().pose(44), batch.graph().pose(45)),
+                                       100.0 * Matrix6::Identity(), ConstraintKind::kLoopClosure},
+                            /*may_be_tree_edge=*/false);
+  }
+  const double beside_before = batch.weights()[beside];
+  // Node 45 and the nodes after it 3 m aside: the loop closures across that edge, and the one
+  // beside it, lose weight (to values that follow their paths' covariances, not 0 or 1).
+  std::vector<Pose3> poses;
+  for (std::size_t v = 0; v < batch.graph().numNodes(); ++v) {
+    const Pose3& p = batch.graph().node(v).pose;
+    poses.push_back(batch.graph().node(v).id >= 45 ? Pose3::fromRollPitchYaw(0.0, 3.0, 0, 0, 0, 0) * p : p);
+  }
+  batch.setPoses(poses);
+  TreeOptimizer one_by_one = batch;
+  batch.refreshWeights();
+  const std::size_t m = batch.graph().numConstraints();
+  for (std::size_t c = 0; c < m; ++c) one_by_one.refreshWeights(std::vector<std::size_t>{c});
+  ASSERT_GT(std::abs(batch.weights()[beside] - beside_before), 0.5) << "the scenario must change it";
+  std::size_t partial = 0;  // loop closures after it with a weight strictly inside (0, 1)
+  for (std::size_t c = beside + 1; c < m; ++c)
+    partial += batch.weights()[c] > 0.0 && batch.weights()[c] < 1.0;
+  ASSERT_GT(partial, 0u) << "the scenario must have weights that follow their path's covariance";
+  for (std::size_t c = 0; c < m; ++c) EXPECT_EQ(batch.weights()[c], one_by_one.weights()[c]) << c;
+}

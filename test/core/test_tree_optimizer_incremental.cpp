@@ -272,3 +272,50 @@ TEST(TreeOptimizerIncremental, Chi2AndJournalFollowHeldLoopClosuresWeightCapsAnd
   opt.refreshWeights();
   expectChi2Agrees(opt, "a weight refresh after setPoses");
 }
+
+// A map at the optimum of its first `settled` constraints (a merged finish): the pass after a new
+// loop closure updates the new one and the newer constraints its path touches, not the settled
+// ones there, whose residuals are the optimum's balance.
+TEST(TreeOptimizerIncremental, SettledConstraintsTouchingANewPathAreLeftAloneUnlessNew) {
+  constexpr std::size_t kNodes = 40, kTop = 5;
+  const Pose3 step = Pose3::fromRollPitchYaw(1.0, 0.0, 0.0, 0.0, 0.0, 2 * M_PI / 30);
+  TreeOptimizer opt;
+  for (std::size_t v = 0; v < kNodes; ++v) {
+    // Perturbed odometry, so every settled constraint has a residual a pass would act on.
+    const Pose3 noise =
+        Pose3::fromRollPitchYaw(0.02 * std::sin(3.0 * v), 0.01 * std::cos(v), 0, 0, 0, 0.01 * std::sin(v));
+    opt.addNode(static_cast<NodeId>(v), v == 0 ? Pose3() : opt.graph().node(v - 1).pose * step * noise);
+    if (v > 0)
+      opt.addConstraint(Constraint{static_cast<NodeId>(v - 1), static_cast<NodeId>(v), step,
+                                   Matrix6::Identity(), ConstraintKind::kOdometry});
+  }
+  opt.addConstraint(Constraint{0, 30, Pose3(), Matrix6::Identity(), ConstraintKind::kLoopClosure});
+  for (int i = 0; i < 3; ++i) opt.iterate();
+  const std::size_t settled = opt.graph().numConstraints();
+  // One newer keyframe, then a loop closure from it back to kTop.
+  opt.addNode(static_cast<NodeId>(kNodes), opt.graph().node(kNodes - 1).pose * step);
+  opt.addConstraint(Constraint{static_cast<NodeId>(kNodes - 1), static_cast<NodeId>(kNodes), step,
+                               Matrix6::Identity(), ConstraintKind::kOdometry});
+  const Pose3 measured = opt.graph().node(kTop).pose.inverse() * opt.graph().node(kNodes).pose *
+                         Pose3::fromRollPitchYaw(0.2, -0.1, 0.05, 0.02, 0, 0.05);
+  const std::size_t lc =
+      opt.addConstraint(Constraint{static_cast<NodeId>(kTop), static_cast<NodeId>(kNodes), measured,
+                                   10 * Matrix6::Identity(), ConstraintKind::kLoopClosure});
+  const PoseGraph before = opt.graph();
+
+  // The same pass by hand: the newer constraints alone (the odometry first, as the pass orders
+  // them by their top node's level, then the loop closure), each once at learning rate 1.
+  TreeOptimizer by_hand = opt;
+  by_hand.applyUpdate(settled, 1.0);
+  by_hand.applyUpdate(lc, 1.0);
+  TreeOptimizer all = opt;
+  all.iterateAffected(1);
+
+  opt.iterateAffected(1, settled);
+  EXPECT_LT(largestPoseDifference(opt.graph(), by_hand.graph()), 1e-9);
+  // With every constraint at the path (the default), the settled ones move the map differently.
+  EXPECT_GT(largestPoseDifference(all.graph(), opt.graph()), 1e-3);
+  expectChi2Agrees(opt, "the pass with settled constraints");
+  // The loop closure was applied: its residual shrank.
+  EXPECT_LT(constraintChi2(opt.graph(), lc), 0.5 * constraintChi2(before, lc));
+}

@@ -39,7 +39,9 @@ struct OptimizationOptions {
   // Full rounds: `full_iterations` passes over all constraints, due every `full_every_keyframes`
   // new keyframes or `full_every_sec` of message time (0 disables either), and only when a loop
   // closure arrived since the last round or finish (a chain of odometry alone has nothing to
-  // correct, and a finish leaves nothing for a round).
+  // correct, and a finish leaves nothing for a round).  Once a background finish was merged, a due
+  // round re-weighs the loop closures and runs no pass (MapOptimizer::reweighRound), and the pass
+  // after a loop closure leaves the constraints that finish settled alone unless they are new.
   int full_iterations = 5;
   int full_every_keyframes = 50;
   double full_every_sec = 10.0;
@@ -184,6 +186,8 @@ class MapOptimizer {
  private:
   void runAffectedPass();
   void runFullPass();
+  // A due full round once a finish settled the map: re-weighs the loop closures, runs no pass.
+  void reweighRound();
   OptimizeResult finishNow(unsigned iterations);
   FinishJob makeFinishJob(unsigned iterations) const;
   // False (and said once) when constraints leave axes unmeasured: the background finish is off.
@@ -283,6 +287,10 @@ class MapOptimizer {
   // The g2o chi2 of the map the last finish left (a lower bound of the optimum of any graph that
   // grew from it); NaN when there is none for the graph as it is.
   double finished_chi2_;
+  // The constraints the last merged background finish (or the finish of a ~optimize with the
+  // background finish on) settled, by index [0, settled_constraints_): affected passes leave them
+  // alone unless new, and full rounds only re-weigh.  0 when no finish settled the graph as it is.
+  std::size_t settled_constraints_ = 0;
   // Changes when constraints are removed or the graph is replaced: a finish of another structure
   // cannot be merged.
   std::uint64_t structure_ = 0;
