@@ -209,7 +209,9 @@ TEST(BackgroundFinish, AfterAMergeADueFullRoundRunsNoPass) {
     drain(p);
     std::optional<FinishJob> job = p.takeFinishJob();
     ASSERT_TRUE(job);
-    if (merge) ASSERT_TRUE(p.mergeFinish(runFinishJob(std::move(*job))));
+    if (merge) {
+      ASSERT_TRUE(p.mergeFinish(runFinishJob(std::move(*job))));
+    }
     // Keyframes, then a loop closure on the second lap: its pass, and a round falls due.
     feed(p, sc, lap + 1, lap + 31);
     const std::size_t passes_before = p.status().counters.optimization_passes;
