@@ -403,14 +403,14 @@ double MapOptimizer::odometryCycleChi2(std::size_t c) {
   }
   if (odometry_cycle_chi2_.size() <= c) odometry_cycle_chi2_.resize(c + 1, kNaN);
   double& chi2 = odometry_cycle_chi2_[c];
-  if (std::isnan(chi2)) {
-    // Measurements only, so it never changes while the constraints stay as they are.
-    const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
-    chi2 = (a > b ? a - b : b - a) > kMaxPathLinks
-               ? -1.0
-               : toro::loopClosureOdometryChi2(optimizer_.graph(), odometrySteps(), c, planar_);
-  }
+  // Measurements only, so it never changes while the constraints stay as they are.
+  if (std::isnan(chi2)) chi2 = toro::loopClosureOdometryChi2(optimizer_.graph(), odometrySteps(), c, planar_);
   return chi2;
+}
+
+std::size_t MapOptimizer::span(std::size_t c) const {
+  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
+  return a > b ? a - b : b - a;
 }
 
 int MapOptimizer::mapPathVerdict(std::size_t c, bool record) {
@@ -422,7 +422,7 @@ int MapOptimizer::mapPathVerdict(std::size_t c, bool record) {
     if (path <= threshold / kPathLenience) return 1;
   }
   // No path through accepted loop closures, or one in doubt: the odometry over the whole span.
-  const double odometry = odometryCycleChi2(c);
+  const double odometry = span(c) > kMaxPathLinks ? -1.0 : odometryCycleChi2(c);
   if (!(odometry >= 0.0)) return path >= 0.0 ? 1 : 0;
   if (record) tested_odometry_paths_.add(odometry);
   return odometry <= mapPathThreshold(false) ? 1 : -1;
@@ -439,9 +439,8 @@ void MapOptimizer::release(std::size_t c) {
 }
 
 int MapOptimizer::odometryVerdict(std::size_t c, double threshold) {
-  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
-  if ((a > b ? a - b : b - a) > static_cast<std::size_t>(options_.support_window_keyframes)) return 0;
-  const double chi2 = toro::loopClosureOdometryChi2(optimizer_.graph(), odometrySteps(), c, planar_);
+  if (span(c) > static_cast<std::size_t>(options_.support_window_keyframes)) return 0;
+  const double chi2 = odometryCycleChi2(c);
   if (!(chi2 >= 0.0)) return 0;
   return chi2 <= threshold ? 1 : -1;
 }

@@ -225,8 +225,9 @@ class MapOptimizer {
   // weight; toro::loopClosureChainChi2), -1 when the path is odometry alone (odometryCycleChi2
   // then), too long, or has a tree edge without such a constraint.
   // odometryCycleChi2: c's cycle with the odometry over its whole span (toro::
-  // loopClosureOdometryChi2; cached per constraint until the structure changes), -1 when the
-  // odometry does not connect its ends or the span exceeds the path limit.  mapPathVerdict: -1 the
+  // loopClosureOdometryChi2; cached per constraint until the structure changes: odometryVerdict
+  // asks it for nearby loop closures too), -1 when the odometry does not connect its ends; not
+  // asked beyond the path limit.  span: how many keyframes apart c's ends are.  mapPathVerdict: -1 the
   // evidence contradicts c (beyond mapPathThreshold), +1 it agrees, 0 it cannot tell; `record`
   // feeds the thresholds' statistics (a new arrival).  A path through accepted loop closures
   // decides when it is clear; otherwise the odometry does.  Partners' support cannot overrule -1:
@@ -234,6 +235,7 @@ class MapOptimizer {
   // itself, not with the odometry or the loop closures accepted between the two places.
   double mapPathChi2(std::size_t c);
   double odometryCycleChi2(std::size_t c);
+  std::size_t span(std::size_t c) const;
   double mapPathThreshold(bool through_loop_closure) const;
   int mapPathVerdict(std::size_t c, bool record);
   // The loop closures near c that agree with it (`record`: its tests feed the threshold's
