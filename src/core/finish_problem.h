@@ -62,7 +62,6 @@ struct ModelSE2 {
 // without one.  Indexed by dense node index.
 std::vector<bool> heldNodes(const PoseGraph& graph);
 
-
 template <class Model>
 class FinishProblem {
  public:

@@ -947,6 +947,7 @@ void MapOptimizer::rejectCandidate(double chi2) {
     if (held) optimizer_.setWeightCap(added, later_caps[c - gate_constraint_ - 1]);
   }
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(gate_constraint_));
+  odometry_steps_.clear();  // constraint indices after the candidate moved down by one
   ++structure_;
   finished_chi2_ = kNaN;
   settled_constraints_ = 0;
