@@ -63,12 +63,12 @@ struct OptimizationOptions {
   // chi2 on the map as it is exceeds the robust width) is held at weight 0 until two other loop
   // closures whose ends lie within `support_window_keyframes` keyframes of its ends agree with it
   // (toro::loopClosurePairChi2: the cycle of two and the odometry between them, whatever the
-  // map), or until the map comes to agree with it; one whose own ends lie within the window is
-  // decided by the odometry between them.  Why: a wrong loop closure between distant places
-  // meets a long, compliant path, so no test of it alone rejects it, and once applied it bends
-  // the map for everyone; a right one of a revisit has neighbours that say the same.  The price:
-  // a revisit corrects the map from its third loop closure on (its fifth the first time, while
-  // the threshold learns the sender's covariance scale).
+  // map), or until the settled map comes to agree with it (agreesWithSettledMap); one whose own
+  // ends lie within the window is decided by the odometry between them.  Why: a wrong loop
+  // closure between distant places meets a long, compliant path, so no test of it alone rejects
+  // it, and once applied it bends the map for everyone; a right one of a revisit has neighbours
+  // that say the same.  The price: a revisit corrects the map from its third loop closure on (its
+  // fifth the first time, while the threshold learns the sender's covariance scale).
   bool hold_until_supported = true;
   int support_window_keyframes = 25;
   std::string validate() const;
@@ -214,6 +214,8 @@ class MapOptimizer {
   void judgeAllSupport();
   void release(std::size_t c);
   bool agreesWithMap(std::size_t c) const;
+  // Held c may count now: agreesWithMap, or within kReleaseWidths of the map and its evidence.
+  bool agreesWithSettledMap(std::size_t c);
   double supportThreshold() const;
   // Ends within the support window: +1 the odometry between them agrees, -1 it contradicts; 0
   // farther apart (or not connected by odometry): the odometry cannot tell.
