@@ -3,7 +3,11 @@
 // to the same place one lap earlier; measures, in wall time, from publishing a loop closure to
 // receiving the first /tf map->odom that differs from the previous one (the node must run with
 // full rounds off, so map->odom changes only through loop closures: see run_node_bench.sh).
-//   bench_node_latency <keyframes> <rate_hz> <lap_keyframes> <node_pid>
+// Each revisit is `revisit` loop closures (default 3) between neighbouring keyframes, as a place
+// recogniser reports one, sent together: the node's support holds a loop closure until two
+// neighbours agree, so a lone one every second would be held and measure nothing; the latency is
+// the last one's, which releases the revisit.
+//   bench_node_latency <keyframes> <rate_hz> <lap_keyframes> <node_pid> [revisit]
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -80,10 +84,12 @@ struct LatencyProbe {
 
 int main(int argc, char** argv) {
   ros::init(argc, argv, "bench_node_latency");
-  if (argc != 5) {
-    std::fprintf(stderr, "usage: bench_node_latency <keyframes> <rate_hz> <lap_keyframes> <node_pid>\n");
+  if (argc != 5 && argc != 6) {
+    std::fprintf(stderr,
+                 "usage: bench_node_latency <keyframes> <rate_hz> <lap_keyframes> <node_pid> [revisit]\n");
     return 2;
   }
+  const std::size_t revisit = argc == 6 ? std::stoul(argv[5]) : 3;
   const std::size_t total = std::stoul(argv[1]);
   const double rate = std::stod(argv[2]);
   const std::size_t lap = std::stoul(argv[3]);
@@ -120,19 +126,23 @@ int main(int argc, char** argv) {
     odom_pub.publish(m);
     truths.push_back(truth);
     stamps.push_back(now);
-    if (i >= lap && i % static_cast<std::size_t>(rate) == 0) {
-      toro_ros::LoopClosure lc;
-      lc.header.stamp = now;
-      lc.id_from = lc.id_to = -1;
-      lc.stamp_from = stamps[i - lap];
-      lc.stamp_to = now;
-      lc.from_T_to = toro_ros::poseToMsg(toro::relativePose(truths[i - lap], truth));
-      for (int k = 0; k < 6; ++k) lc.covariance[7 * k] = 1e-4;
-      {
-        std::lock_guard<std::mutex> lock(probe.mutex);
-        probe.unanswered.emplace_back(ros::WallTime::now(), i);
+    if (i >= lap + 2 * revisit && i % static_cast<std::size_t>(rate) == 0) {
+      // Keyframes i - 2k (k = revisit - 1 .. 0) to their places a lap earlier, the newest last.
+      for (std::size_t k = revisit; k-- > 0;) {
+        const std::size_t to = i - 2 * k;
+        toro_ros::LoopClosure lc;
+        lc.header.stamp = now;
+        lc.id_from = lc.id_to = -1;
+        lc.stamp_from = stamps[to - lap];
+        lc.stamp_to = stamps[to];
+        lc.from_T_to = toro_ros::poseToMsg(toro::relativePose(truths[to - lap], truths[to]));
+        for (int j = 0; j < 6; ++j) lc.covariance[7 * j] = 1e-4;
+        if (k == 0) {
+          std::lock_guard<std::mutex> lock(probe.mutex);
+          probe.unanswered.emplace_back(ros::WallTime::now(), i);
+        }
+        loop_pub.publish(lc);
       }
-      loop_pub.publish(lc);
     }
     if (i % (10 * static_cast<std::size_t>(rate)) == 0) {
       toro_ros::GetStatus s;
@@ -162,9 +172,11 @@ int main(int argc, char** argv) {
     if (k >= total * 3 / 4) last_quarter.push_back(l * 1e3);
   }
   std::printf(
-      "keyframes %lu, constraints %lu, loop closures sent %zu, applied %lu, refused %lu, unanswered %zu\n",
+      "keyframes %lu, constraints %lu, revisits sent %zu (%zu loop closures each), loop closures applied "
+      "%lu, "
+      "refused %lu, revisits unanswered %zu\n",
       static_cast<unsigned long>(s.response.keyframes), static_cast<unsigned long>(s.response.constraints),
-      probe.latencies.size() + probe.unanswered.size(),
+      probe.latencies.size() + probe.unanswered.size(), revisit,
       static_cast<unsigned long>(s.response.loop_closures_applied),
       static_cast<unsigned long>(s.response.loop_closures_refused), probe.unanswered.size());
   std::printf("queue: max seen %zu, at end %lu, dropped %lu\n", max_queue,

@@ -2,6 +2,9 @@
 # Node latency benchmark (issue 4): a private roscore, map_corrector_node with every odometry
 # message a keyframe and full rounds off (so map->odom changes only through loop closures), and
 # the bench client.  Usage: bench/node/run_node_bench.sh <build dir> [keyframes] [rate_hz] [lap]
+# Environment: REVISIT loop closures per revisit (default 3; the node's support releases a
+# revisit at its third), SUPPORT=false to apply each loop closure at once
+# (robust_hold_until_supported), FULL_ITERATIONS as below.
 set -e
 BUILD=${1:?build dir}
 KEYFRAMES=${2:-20000}
@@ -21,6 +24,7 @@ rosparam set /map_corrector/keyframe_angle_rad 1.0
 # closures and the latency attribution no longer holds: use it to check the queue only).
 rosparam set /map_corrector/optimization_full_iterations "${FULL_ITERATIONS:-0}"
 rosparam set /map_corrector/queue_size 100000
+rosparam set /map_corrector/robust_hold_until_supported "${SUPPORT:-true}"
 "$BUILD/devel/lib/toro_ros/map_corrector_node" __name:=map_corrector >/dev/null 2>&1 &
 NODE=$!
-"$BUILD/devel/lib/toro_ros/bench_node_latency" "$KEYFRAMES" "$RATE" "$LAP" "$NODE"
+"$BUILD/devel/lib/toro_ros/bench_node_latency" "$KEYFRAMES" "$RATE" "$LAP" "$NODE" "${REVISIT:-3}"
