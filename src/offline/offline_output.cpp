@@ -98,9 +98,11 @@ void writeOptimalityJson(std::ostream& out, const std::vector<OfflineRun::Optima
   out << "  \"optimality\": [";
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const OfflineRun::Optimality& o = samples[i];
-    out << (i ? ",\n" : "\n") << "    {\"stamp\": " << num(o.stamp_sec) << ", \"constraints\": " << o.constraints
-        << ", \"published_chi2\": " << num(o.published_chi2) << ", \"optimum_chi2\": " << num(o.optimum_chi2)
-        << "}";
+    out << (i ? ",\n" : "\n") << "    {\"stamp\": " << num(o.stamp_sec)
+        << ", \"constraints\": " << o.constraints << ", \"published_chi2\": " << num(o.published_chi2)
+        << ", \"optimum_chi2\": " << num(o.optimum_chi2)
+        << ", \"published_weighted_chi2\": " << num(o.published_weighted_chi2)
+        << ", \"weighted_optimum_chi2\": " << num(o.weighted_optimum_chi2) << "}";
   }
   out << "\n  ],\n";
 }

@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cmath>
 #include <iostream>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -30,6 +31,7 @@ using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 constexpr std::size_t kMaxPrintedWarnings = 20;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 }  // namespace
 
@@ -143,8 +145,15 @@ void OfflineRunner::sampleOptimality(double stamp_sec, OfflineRun* run) const {
   toro::FinishOptions o;
   if (!toro::cholmodAvailable()) o.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
   toro::LevenbergMarquardt(o).optimize(best);
-  run->optimality.push_back(
-      OfflineRun::Optimality{stamp_sec, toro::g2oChi2(published), toro::g2oChi2(best), published.numConstraints()});
+  const FinishOutcome weighted = runFinishJob(pipeline_->optimumJob());
+  OfflineRun::Optimality sample;
+  sample.stamp_sec = stamp_sec;
+  sample.published_chi2 = toro::g2oChi2(published);
+  sample.optimum_chi2 = toro::g2oChi2(best);
+  sample.published_weighted_chi2 = weighted.success ? weighted.chi2_before : kNaN;
+  sample.weighted_optimum_chi2 = weighted.success ? weighted.chi2_after : kNaN;
+  sample.constraints = published.numConstraints();
+  run->optimality.push_back(sample);
 }
 
 void OfflineRunner::finalPasses(OfflineRun* run) {

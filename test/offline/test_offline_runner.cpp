@@ -127,6 +127,44 @@ TEST(OfflineRunner, SampleBeatsOdometryByAWideMarginAgainstTruth) {
   EXPECT_LT(s.chi2_corrected, s.chi2_odometry / 10) << describeSummary(s);
 }
 
+// The optimality samples: the published map against the optimum of the graph so far, plain (every
+// loop closure at full weight) and under the map's robust weights (what its finishes minimise).
+// Neither optimum lies above its published value; without robust weights the two are the same.
+TEST(OfflineRunner, OptimalitySamplesHoldThePlainAndTheWeightedOptimum) {
+  const auto samples = [](const std::string& config) {
+    OfflineOptions o = sampleOptions();
+    o.config_path = config;
+    o.optimality_every_sec = 5.0;
+    OfflineRunner runner(o);
+    return runner.run().optimality;
+  };
+  const auto robust = samples(kReplayConfig);
+  ASSERT_GE(robust.size(), 5u);
+  std::size_t with_loop_closures = 0;
+  for (const OfflineRun::Optimality& s : robust) {
+    EXPECT_LE(s.optimum_chi2, s.published_chi2 * (1 + 1e-9) + 1e-12) << s.stamp_sec;
+    EXPECT_LE(s.weighted_optimum_chi2, s.published_weighted_chi2 * (1 + 1e-9) + 1e-12) << s.stamp_sec;
+    // Weights only take information away: the weighted objective never exceeds the plain one.
+    EXPECT_LE(s.published_weighted_chi2, s.published_chi2 * (1 + 1e-9) + 1e-12) << s.stamp_sec;
+    with_loop_closures += s.optimum_chi2 > 1e-6;
+  }
+  EXPECT_GE(with_loop_closures, 3u);
+  const fs::path plain_config =
+      fs::temp_directory_path() / ("toro_offline_plain_" + std::to_string(::getpid()) + ".yaml");
+  {
+    std::ifstream in(kReplayConfig);
+    std::ofstream out(plain_config);
+    out << in.rdbuf() << "\nrobust_loop_closures: false\n";
+  }
+  const auto plain = samples(plain_config.string());
+  fs::remove(plain_config);
+  ASSERT_FALSE(plain.empty());
+  for (const OfflineRun::Optimality& s : plain) {
+    EXPECT_NEAR(s.published_weighted_chi2, s.published_chi2, 1e-9 * s.published_chi2 + 1e-12) << s.stamp_sec;
+    EXPECT_NEAR(s.weighted_optimum_chi2, s.optimum_chi2, 1e-6 * s.optimum_chi2 + 1e-9) << s.stamp_sec;
+  }
+}
+
 TEST(OfflineRunner, ConstantSpeedBagWithDefaultConfigStillCorrects) {
   // A bag whose keyframes are not on the node's keyframe grid (spacing from the speed): the node
   // picks its own keyframes and matches loop-closure stamps within its tolerance.

@@ -75,6 +75,11 @@ struct OfflineRun {
     double stamp_sec = 0.0;
     double published_chi2 = 0.0;
     double optimum_chi2 = 0.0;
+    // The same under the robust weights the map uses (loop closures held or weighed down count
+    // by their weight): the objective the map and its finishes minimise.  Equal to the above
+    // when every loop closure has full weight.
+    double published_weighted_chi2 = 0.0;
+    double weighted_optimum_chi2 = 0.0;
     std::size_t constraints = 0;
   };
   std::vector<Optimality> optimality;

@@ -182,6 +182,10 @@ class MapOptimizer {
   toro::TreeOptimizerOptions optimizerOptions() const;
   // Changes whenever the map (poses, constraints, weights, rejected ones) changes.
   std::uint64_t revision() const { return revision_; }
+  // A finish of the map as it is, with its weights, to the core's default tolerance: what the
+  // map's own optimum is (the offline runner's optimality samples), whether or not a background
+  // finish is due.  Changes nothing.
+  FinishJob optimumJob() const { return makeFinishJob(0); }
 
  private:
   void runAffectedPass();

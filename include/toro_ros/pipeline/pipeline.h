@@ -151,6 +151,8 @@ class Pipeline {
   // paused.  mergeFinish returns true if the outcome was taken into the map.
   std::optional<FinishJob> takeFinishJob();
   bool mergeFinish(const FinishOutcome& outcome);
+  // MapOptimizer::optimumJob: the finish to the map's optimum under its robust weights, to measure.
+  FinishJob optimumJob() const { return map_.optimumJob(); }
   void setPaused(bool paused) { paused_ = paused; }
   bool paused() const { return paused_; }
   // Forgets the graph, keyframes and pending loop closures (counters survive; resets counted).
