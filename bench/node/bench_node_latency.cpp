@@ -172,9 +172,8 @@ int main(int argc, char** argv) {
     if (k >= total * 3 / 4) last_quarter.push_back(l * 1e3);
   }
   std::printf(
-      "keyframes %lu, constraints %lu, revisits sent %zu (%zu loop closures each), loop closures applied "
-      "%lu, "
-      "refused %lu, revisits unanswered %zu\n",
+      "keyframes %lu, constraints %lu, revisits sent %zu (%zu loop closures each), "
+      "loop closures applied %lu, refused %lu, revisits unanswered %zu\n",
       static_cast<unsigned long>(s.response.keyframes), static_cast<unsigned long>(s.response.constraints),
       probe.latencies.size() + probe.unanswered.size(), revisit,
       static_cast<unsigned long>(s.response.loop_closures_applied),
