@@ -13,7 +13,9 @@
 #include <cstdio>
 #include <deque>
 #include <fstream>
+#include <map>
 #include <mutex>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -56,6 +58,7 @@ struct LatencyProbe {
   geometry_msgs::Transform last;
   bool have_last = false;
   std::vector<std::pair<std::size_t, double>> latencies;  // (keyframes when sent, seconds)
+  std::vector<std::size_t> superseded;  // keyframes when sent, of revisits a later one's answer passed
 
   void onTf(const tf2_msgs::TFMessage::ConstPtr& msg) {
     const ros::WallTime now = ros::WallTime::now();
@@ -72,9 +75,14 @@ struct LatencyProbe {
       const bool changed = !have_last || moved > kChangeThreshold;
       last = a;
       have_last = true;
+      // A change answers the newest revisit sent before it; older ones still waiting were never
+      // answered on their own (attributing it to the oldest would shift every later latency by
+      // the revisit period once one revisit is held).
       if (changed && !unanswered.empty()) {
-        latencies.emplace_back(unanswered.front().second, (now - unanswered.front().first).toSec());
-        unanswered.pop_front();
+        latencies.emplace_back(unanswered.back().second, (now - unanswered.back().first).toSec());
+        unanswered.pop_back();
+        for (const auto& u : unanswered) superseded.push_back(u.second);
+        unanswered.clear();
       }
     }
   }
@@ -116,6 +124,9 @@ int main(int argc, char** argv) {
   truths.reserve(total);
   stamps.reserve(total);
   std::size_t max_queue = 0, keyframes = 0;
+  std::map<std::size_t, unsigned long> merged_before;  // revisit (keyframes when sent) -> finishes merged
+  std::set<std::size_t> merge_in_window;  // revisits answered when a merge may have been the answer
+  std::size_t checked = 0;                // latencies looked at for merges so far
   ros::WallRate pace(rate);
   for (std::size_t i = 0; i < total && ros::ok(); ++i) {
     const ros::Time now = ros::Time::now();
@@ -127,6 +138,12 @@ int main(int argc, char** argv) {
     truths.push_back(truth);
     stamps.push_back(now);
     if (i >= lap + 2 * revisit && i % static_cast<std::size_t>(rate) == 0) {
+      // A background finish merged between this revisit's publication and its answer moves
+      // map->odom too, so the first change may be the merge's: the merges counted before the
+      // revisit and after its answer tell which answers are unambiguous.
+      toro_ros::GetStatus before;
+      if (ros::service::call("/map_corrector/get_status", before))
+        merged_before[i] = before.response.finishes_merged;
       // Keyframes i - 2k (k = revisit - 1 .. 0) to their places a lap earlier, the newest last.
       for (std::size_t k = revisit; k-- > 0;) {
         const std::size_t to = i - 2 * k;
@@ -142,6 +159,22 @@ int main(int argc, char** argv) {
           probe.unanswered.emplace_back(ros::WallTime::now(), i);
         }
         loop_pub.publish(lc);
+      }
+    }
+    std::size_t answered = 0;
+    {
+      std::lock_guard<std::mutex> lock(probe.mutex);
+      answered = probe.latencies.size();
+    }
+    if (answered > checked) {
+      toro_ros::GetStatus after;
+      if (ros::service::call("/map_corrector/get_status", after)) {
+        std::lock_guard<std::mutex> lock(probe.mutex);
+        for (; checked < answered; ++checked) {
+          const auto it = merged_before.find(probe.latencies[checked].first);
+          if (it == merged_before.end() || after.response.finishes_merged > it->second)
+            merge_in_window.insert(probe.latencies[checked].first);
+        }
       }
     }
     if (i % (10 * static_cast<std::size_t>(rate)) == 0) {
@@ -166,18 +199,31 @@ int main(int argc, char** argv) {
   ros::service::call("/map_corrector/get_status", s);
   const long rss_end = rssKiB(pid);
   spinner.stop();
-  std::vector<double> all, last_quarter;
+  for (; checked < probe.latencies.size(); ++checked) {  // answered during the last wait
+    const auto it = merged_before.find(probe.latencies[checked].first);
+    if (it == merged_before.end() || s.response.finishes_merged > it->second)
+      merge_in_window.insert(probe.latencies[checked].first);
+  }
+  std::vector<double> all, last_quarter, no_merge, no_merge_last_quarter;
   for (const auto& [k, l] : probe.latencies) {
     all.push_back(l * 1e3);
     if (k >= total * 3 / 4) last_quarter.push_back(l * 1e3);
+    if (merge_in_window.count(k)) continue;
+    no_merge.push_back(l * 1e3);
+    if (k >= total * 3 / 4) no_merge_last_quarter.push_back(l * 1e3);
   }
   std::printf(
       "keyframes %lu, constraints %lu, revisits sent %zu (%zu loop closures each), "
       "loop closures applied %lu, refused %lu, revisits unanswered %zu\n",
       static_cast<unsigned long>(s.response.keyframes), static_cast<unsigned long>(s.response.constraints),
-      probe.latencies.size() + probe.unanswered.size(), revisit,
+      probe.latencies.size() + probe.unanswered.size() + probe.superseded.size(), revisit,
       static_cast<unsigned long>(s.response.loop_closures_applied),
-      static_cast<unsigned long>(s.response.loop_closures_refused), probe.unanswered.size());
+      static_cast<unsigned long>(s.response.loop_closures_refused),
+      probe.unanswered.size() + probe.superseded.size());
+  for (const std::size_t k : probe.superseded)
+    std::fprintf(stderr, "revisit at keyframe %zu: no answer before the next revisit\n", k);
+  for (const auto& u : probe.unanswered)
+    std::fprintf(stderr, "revisit at keyframe %zu: no answer by the end\n", u.second);
   std::printf("queue: max seen %zu, at end %lu, dropped %lu\n", max_queue,
               static_cast<unsigned long>(s.response.queue_length),
               static_cast<unsigned long>(s.response.queue_dropped));
@@ -188,6 +234,14 @@ int main(int argc, char** argv) {
               total * 3 / 4, total, percentile(last_quarter, 0.5), percentile(last_quarter, 0.99),
               last_quarter.empty() ? NAN : *std::max_element(last_quarter.begin(), last_quarter.end()),
               last_quarter.size());
+  std::printf(
+      "answers with no background finish merged between the revisit and the answer: all median %.1f  p99 "
+      "%.1f  max %.1f  (n=%zu); last quarter median %.1f  p99 %.1f  (n=%zu); %zu answers had a merge in "
+      "their window (their first change may be the merge's)\n",
+      percentile(no_merge, 0.5), percentile(no_merge, 0.99),
+      no_merge.empty() ? NAN : *std::max_element(no_merge.begin(), no_merge.end()), no_merge.size(),
+      percentile(no_merge_last_quarter, 0.5), percentile(no_merge_last_quarter, 0.99),
+      no_merge_last_quarter.size(), merge_in_window.size());
   std::printf("node RSS: %ld KiB at start, %ld KiB at end: %.2f KiB per keyframe\n", rss_start, rss_end,
               s.response.keyframes ? static_cast<double>(rss_end - rss_start) / s.response.keyframes : NAN);
   return 0;

@@ -19,28 +19,50 @@ std::string withoutLeadingSlash(const std::string& frame) {
   return !frame.empty() && frame[0] == '/' ? frame.substr(1) : frame;
 }
 
+// map->odom moved by more than this is a correction (see sendMapToOdom).
+constexpr double kCorrectionMetres = 1e-9;
+constexpr double kCorrectionRadians = 1e-9;
+
 bool samePose(const toro::Pose3& a, const toro::Pose3& b) {
   return a.translation() == b.translation() && a.rotation().coeffs() == b.rotation().coeffs();
 }
 
 }  // namespace
 
-void MapCorrectorNode::tfTimerCallback(const ros::TimerEvent&) {
-  const std::shared_ptr<const Snapshot> s = worker_->snapshot();
+void MapCorrectorNode::tfTimerCallback(const ros::TimerEvent&) { sendMapToOdom(nullptr); }
+
+void MapCorrectorNode::sendMapToOdom(const Snapshot* correction) {
+  // The tick reads the worker's snapshot under the lock: a correction sent meanwhile from a newer
+  // snapshot (published before its observer runs) is then never followed by an older map->odom.
+  std::lock_guard<std::mutex> lock(tf_mutex_);
+  std::shared_ptr<const Snapshot> newest;
+  if (!correction) newest = worker_->snapshot();
+  const Snapshot& snapshot = correction ? *correction : *newest;
   const ros::Time now = ros::Time::now();
-  if (!s->has_map_T_odom || now.isZero()) return;  // nothing yet, or sim time before the first /clock
+  if (!snapshot.has_map_T_odom || now.isZero()) return;  // nothing yet, or sim time before the first /clock
   const std::shared_ptr<const NodeOptions> o = options();
   // Stamped ahead so that tf lookups at "now" made by other nodes find it before the next tick.
   const ros::Time stamp = now + ros::Duration(o->transform_tolerance_sec);
+  if (correction) {
+    // A new keyframe moves map->odom by rounding only (~1e-15); a loop closure's pass, a merged
+    // finish or a full round by far more.  Sent at once, the correction does not wait up to a tick
+    // (20 ms at 50 Hz); at most once a tick, so full rounds cannot raise the rate above twice it.
+    const toro::Pose3 moved = last_tf_map_T_odom_.inverse() * snapshot.map_T_odom;
+    if (correction_sent_since_tick_ ||
+        !(moved.translation().norm() > kCorrectionMetres || moved.angle() > kCorrectionRadians))
+      return;
+  }
   // Under sim time the timer can fire twice between /clock ticks; the same stamp again would only
   // make tf warn TF_REPEATED_DATA.  (A stamp behind the last one is a clock jump: publish it.)
   if (stamp == last_tf_stamp_) return;
   last_tf_stamp_ = stamp;
+  last_tf_map_T_odom_ = snapshot.map_T_odom;
+  correction_sent_since_tick_ = correction != nullptr;
   geometry_msgs::TransformStamped t;
   t.header.stamp = stamp;
   t.header.frame_id = o->map_frame;
   t.child_frame_id = o->odom_frame;
-  t.transform = transformToMsg(s->map_T_odom);
+  t.transform = transformToMsg(snapshot.map_T_odom);
   tf_broadcaster_.sendTransform(t);
 }
 
@@ -60,6 +82,7 @@ void MapCorrectorNode::onOdometryArrived(const nav_msgs::Odometry::ConstPtr& msg
 }
 
 void MapCorrectorNode::onSnapshot(const Pipeline& pipeline, const Snapshot& snapshot) {
+  sendMapToOdom(&snapshot);
   // Commands such as ~get_status make snapshots too; the graph goes out only when it changed, and
   // only to subscribers (one that connects later sets graph_pending_: the timer flushes).
   if (graph_published_ && pipeline.revision() == graph_revision_) return;

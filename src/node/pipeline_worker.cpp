@@ -56,7 +56,13 @@ std::shared_ptr<const Snapshot> PipelineWorker::snapshot() const {
 }
 
 void PipelineWorker::publishSnapshot() {
-  std::shared_ptr<const Snapshot> s = pipeline_->makeSnapshot();
+  const std::shared_ptr<const Snapshot> s = pipeline_->makeSnapshot();
+  {
+    // Readers see it before the observer runs: an observer that sends from it (the node's tf on a
+    // correction) is never followed by a reader's older snapshot.
+    std::lock_guard<std::mutex> lock(snapshot_mutex_);
+    snapshot_ = s;
+  }
   if (observer_) {
     try {
       observer_(*pipeline_, *s);
@@ -64,8 +70,6 @@ void PipelineWorker::publishSnapshot() {
       if (on_error_) on_error_(std::string("snapshot observer failed: ") + e.what());
     }
   }
-  std::lock_guard<std::mutex> lock(snapshot_mutex_);
-  snapshot_.swap(s);
 }
 
 void PipelineWorker::process(Item& item) {

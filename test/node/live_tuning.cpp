@@ -152,6 +152,40 @@ TEST(LiveTuning, TfRateChangedLive) {
   EXPECT_LE(count, 30);
 }
 
+TEST(LiveTuning, ACorrectionGoesOutAtOnceNotAtTheNextTfTick) {
+  MapCorrectorConfig config = *reconfigure->current();
+  config.tf_rate_hz = 0.1;  // a tick every 10 s
+  // The gate (switched on above) judges against the uncorrected map: the first revisit of a
+  // drifted run would be refused; the robust support of the defaults takes it.
+  config.loop_closure_gate_confidence = 0.0;
+  ASSERT_TRUE(reconfigure->set(config));
+  ASSERT_TRUE(Client::waitFor([] { return client->logged("reconfigured tf_rate_hz: 10 -> 0.1"); }));
+  // Right after a tick the next one is 10 s away; the map has not been corrected yet (the only
+  // loop closure so far was the gate's wrong one).
+  const int ticks = client->observedCopy<int>([](const Observed& o) { return o.tf_count; });
+  ASSERT_TRUE(client->waitObserved([&](const Observed& o) { return o.tf_count > ticks; }, 15.0));
+  const auto before = client->observedCopy<geometry_msgs::Transform>(
+      [](const Observed& o) { return o.map_T_odom->transform; });
+  const auto sent = std::chrono::steady_clock::now();
+  for (const LoopClosure& lc :
+       toro_ros::testing::revisitLoopClosures(scenario, 0, scenario.odometry.size() - 1))
+    client->publishLoopClosure(lc);
+  const bool corrected = client->waitObserved(
+      [&](const Observed& o) {
+        const auto& t = o.map_T_odom->transform.translation;
+        return std::hypot(t.x - before.translation.x, t.y - before.translation.y) > 0.01;
+      },
+      5.0);
+  const double waited = std::chrono::duration<double>(std::chrono::steady_clock::now() - sent).count();
+  const GetStatus::Response st = client->status();
+  EXPECT_TRUE(corrected) << "no corrected map->odom " << waited << " s after the revisit (applied "
+                         << st.loop_closures_applied << ", held " << st.loop_closures_held << ", released "
+                         << st.loop_closures_released << ", rejected " << st.loop_closures_rejected << ")";
+  EXPECT_GE(st.loop_closures_applied, 5u);
+  config.tf_rate_hz = 10.0;
+  EXPECT_TRUE(reconfigure->set(config));
+}
+
 TEST(LiveTuning, ParametersThatAreNotLiveKeepTheirStartValues) {
   // live_tuning.test starts the node with map_frame corrected_map; after the changes above the
   // transforms (counted above in that frame) and the path are still in it.

@@ -62,6 +62,11 @@ class MapCorrectorNode {
 
   // Outputs (map_corrector_outputs.cpp).
   void tfTimerCallback(const ros::TimerEvent&);
+  // Sends map->odom stamped transform_tolerance_sec ahead of now, unless that stamp went out
+  // already.  nullptr: the tick, from the worker's snapshot.  A snapshot (the worker's observer,
+  // after it became the worker's): only when an optimisation moved the map since the last one
+  // sent, at most once between two ticks.
+  void sendMapToOdom(const Snapshot* correction);
   // Wall time: under simulated time the clock stops with the bag, and the final state must still
   // go out (path, markers, graph, pose).
   void visualizationTimerCallback(const ros::WallTimerEvent&);
@@ -138,8 +143,11 @@ class MapCorrectorNode {
   ros::CallbackQueue tf_queue_, service_queue_;
   ros::Timer tf_timer_;
   ros::WallTimer visualization_timer_, diagnostics_timer_;
-  // Stamp of the last map->odom sent; only the tf timer's callback (one thread) touches it.
+  // The last map->odom sent: the tf timer and, for a correction, the worker send it.
+  std::mutex tf_mutex_;  // guards the three below
   ros::Time last_tf_stamp_;
+  toro::Pose3 last_tf_map_T_odom_;
+  bool correction_sent_since_tick_ = false;
   std::unique_ptr<ros::AsyncSpinner> tf_spinner_, service_spinner_;
   diagnostic_updater::Updater diagnostics_;
   std::unique_ptr<dynamic_reconfigure::Server<MapCorrectorConfig>> reconfigure_server_;
