@@ -102,7 +102,8 @@ void writeOptimalityJson(std::ostream& out, const std::vector<OfflineRun::Optima
         << ", \"constraints\": " << o.constraints << ", \"published_chi2\": " << num(o.published_chi2)
         << ", \"optimum_chi2\": " << num(o.optimum_chi2)
         << ", \"published_weighted_chi2\": " << num(o.published_weighted_chi2)
-        << ", \"weighted_optimum_chi2\": " << num(o.weighted_optimum_chi2) << "}";
+        << ", \"weighted_optimum_chi2\": " << num(o.weighted_optimum_chi2)
+        << ", \"since_loop_closure\": " << num(o.since_loop_closure_sec) << "}";
   }
   out << "\n  ],\n";
 }

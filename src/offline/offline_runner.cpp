@@ -43,6 +43,10 @@ std::string OfflineOptions::validate() const {
   if (!(std::isfinite(start_sec) && start_sec >= 0)) return "start must be >= 0 s";
   if (!(std::isfinite(duration_sec) && duration_sec >= 0)) return "duration must be >= 0 s (0: to the end)";
   if (!(std::isfinite(optimality_every_sec) && optimality_every_sec >= 0)) return "optimality period must be >= 0 s";
+  if (!(std::isfinite(optimality_after_loop_closure_sec) && optimality_after_loop_closure_sec >= 0))
+    return "optimality delay after a loop closure must be >= 0 s";
+  if (optimality_after_loop_closure_sec > 0 && !(optimality_every_sec > 0))
+    return "optimality delay after a loop closure needs an optimality period (their minimum spacing) > 0 s";
   if (solver_threads) {
     if (const std::string e = toro::validateSolverThreads(*solver_threads); !e.empty()) return e;
   }
@@ -138,7 +142,7 @@ void OfflineRunner::traceRobot(const rosbag::MessageInstance& m, OfflineRun* run
       OfflineRun::RobotInMap{m.getTime().toSec(), map_T_odom * poseFromMsg(odometry->pose.pose).translation()});
 }
 
-void OfflineRunner::sampleOptimality(double stamp_sec, OfflineRun* run) const {
+void OfflineRunner::sampleOptimality(double stamp_sec, double since_loop_closure_sec, OfflineRun* run) const {
   const toro::PoseGraph& published = pipeline_->graph();
   if (published.numConstraints() == 0) return;
   toro::PoseGraph best = published;
@@ -153,6 +157,7 @@ void OfflineRunner::sampleOptimality(double stamp_sec, OfflineRun* run) const {
   sample.published_weighted_chi2 = weighted.success ? weighted.chi2_before : kNaN;
   sample.weighted_optimum_chi2 = weighted.success ? weighted.chi2_after : kNaN;
   sample.constraints = published.numConstraints();
+  sample.since_loop_closure_sec = since_loop_closure_sec;
   run->optimality.push_back(sample);
 }
 
@@ -198,8 +203,14 @@ OfflineRun OfflineRunner::run() {
   rosbag::View view(bag, rosbag::TopicQuery(topics), begin, end);
   run.bag_duration_sec = (end - begin).toSec();
   ProgressBar bar(std::cerr, options_.progress);
-  ros::Time next_optimality = begin;
+  // Regular samples: the next one at or after next_optimality.  After loop closures: the next one
+  // at next_optimality once a loop closure set it (sample_due), and never before spaced_until.
+  const bool after_loop_closures = options_.optimality_after_loop_closure_sec > 0;
+  ros::Time next_optimality = begin, spaced_until = begin;
+  bool sample_due = !after_loop_closures;
+  double newest_loop_closure_sec = kNaN;
   for (const rosbag::MessageInstance& m : view) {
+    const std::uint64_t loop_closures_before = pipeline_->counters().loop_closures_received;
     try {
       handlers.at(m.getTopic())(m, *pipeline_);
     } catch (const std::exception& e) {
@@ -209,9 +220,24 @@ OfflineRun OfflineRunner::run() {
     ++run.messages_by_topic[m.getTopic()];
     drainSchedule(m.getTime().toSec(), &run);
     traceRobot(m, &run);
-    if (options_.optimality_every_sec > 0 && m.getTime() >= next_optimality) {
-      sampleOptimality((m.getTime() - begin).toSec(), &run);
-      while (next_optimality <= m.getTime()) next_optimality += ros::Duration(options_.optimality_every_sec);
+    const double stamp_sec = (m.getTime() - begin).toSec();
+    if (pipeline_->counters().loop_closures_received != loop_closures_before) {
+      newest_loop_closure_sec = stamp_sec;
+      if (after_loop_closures && !sample_due) {
+        sample_due = true;
+        next_optimality =
+            std::max(m.getTime() + ros::Duration(options_.optimality_after_loop_closure_sec), spaced_until);
+      }
+    }
+    if (options_.optimality_every_sec > 0 && sample_due && m.getTime() >= next_optimality) {
+      sampleOptimality(stamp_sec, stamp_sec - newest_loop_closure_sec, &run);
+      if (after_loop_closures) {
+        sample_due = false;
+        spaced_until = m.getTime() + ros::Duration(options_.optimality_every_sec);
+      } else {
+        while (next_optimality <= m.getTime())
+          next_optimality += ros::Duration(options_.optimality_every_sec);
+      }
     }
     bar.update(run.bag_duration_sec > 0 ? (m.getTime() - begin).toSec() / run.bag_duration_sec : 1.0,
                run.messages);

@@ -29,6 +29,10 @@ const std::vector<ArgSpec> kSpecs = {
      "every this many seconds of message time, compute the optimum of the graph so far on a copy and "
      "record its chi2 beside the published map's in summary.json (a benchmark's measure; 0: never). "
      "Default 0"},
+    {"optimality-after-loop-closure",
+     "with --optimality-every: take each sample this many seconds of message time after a loop "
+     "closure (the first since the last sample) instead of at regular stamps, at most one per "
+     "--optimality-every (0: regular stamps). Default 0"},
     {"solver-threads",
      "threads of the finish's linear algebra (OpenBLAS, OpenMP), process-wide; 0 leaves the libraries' "
      "own. Default: the config's finish_threads (1)"},
@@ -47,6 +51,8 @@ OfflineOptions optionsFromArgs(const ParsedArgs& a) {
   o.start_sec = a.number("start", o.start_sec);
   o.duration_sec = a.number("duration", o.duration_sec);
   o.optimality_every_sec = a.number("optimality-every", o.optimality_every_sec);
+  o.optimality_after_loop_closure_sec =
+      a.number("optimality-after-loop-closure", o.optimality_after_loop_closure_sec);
   if (a.has("solver-threads")) o.solver_threads = a.integer("solver-threads", 0);
   // A progress bar only for a terminal: in a log file its redraws would be one long line.
   o.progress = !a.has("quiet") && isatty(STDERR_FILENO);

@@ -165,6 +165,39 @@ TEST(OfflineRunner, OptimalitySamplesHoldThePlainAndTheWeightedOptimum) {
   }
 }
 
+// Samples placed after loop closures (the curve target's "within 2 s after each loop closure"):
+// each one comes at least the delay after the first loop closure since the previous sample, never
+// closer to that sample than the period, and says how long ago the newest loop closure came.
+TEST(OfflineRunner, OptimalitySamplesAfterLoopClosuresFollowThemAndKeepTheirSpacing) {
+  OfflineOptions o = sampleOptions();
+  o.optimality_every_sec = 5.0;
+  o.optimality_after_loop_closure_sec = 2.0;
+  OfflineRunner runner(o);
+  const auto samples = runner.run().optimality;
+  ASSERT_GE(samples.size(), 3u);
+  // Message times of the bag's loop closures, from its first message on the input topics.
+  rosbag::Bag bag(o.bag_path);
+  rosbag::View inputs(bag, rosbag::TopicQuery(std::vector<std::string>{"/odom", "/loop_closure"}));
+  std::vector<double> loop_closures;
+  for (const rosbag::MessageInstance& m : rosbag::View(bag, rosbag::TopicQuery("/loop_closure")))
+    loop_closures.push_back((m.getTime() - inputs.getBeginTime()).toSec());
+  ASSERT_GE(loop_closures.size(), 5u);
+  double previous = -1e9;
+  for (const OfflineRun::Optimality& sample : samples) {
+    const auto first_since = std::upper_bound(loop_closures.begin(), loop_closures.end(), previous);
+    ASSERT_NE(first_since, loop_closures.end()) << sample.stamp_sec;
+    EXPECT_GE(sample.stamp_sec, *first_since + 2.0 - 1e-9);
+    EXPECT_GE(sample.stamp_sec, previous + 5.0 - 1e-9);
+    const double newest =
+        *(std::upper_bound(loop_closures.begin(), loop_closures.end(), sample.stamp_sec) - 1);
+    EXPECT_NEAR(sample.since_loop_closure_sec, sample.stamp_sec - newest, 1e-6) << sample.stamp_sec;
+    previous = sample.stamp_sec;
+  }
+  OfflineOptions no_period = o;
+  no_period.optimality_every_sec = 0.0;
+  EXPECT_NE(no_period.validate(), "");
+}
+
 TEST(OfflineRunner, ConstantSpeedBagWithDefaultConfigStillCorrects) {
   // A bag whose keyframes are not on the node's keyframe grid (spacing from the speed): the node
   // picks its own keyframes and matches loop-closure stamps within its tolerance.

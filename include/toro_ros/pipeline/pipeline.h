@@ -180,6 +180,8 @@ class Pipeline {
   // (snapshot_builder.h).
   std::shared_ptr<const Snapshot> makeSnapshot();
   PipelineStatus status() const;
+  // The counters alone (status() copies lists too).
+  const PipelineCounters& counters() const { return counters_; }
   const toro::PoseGraph& graph() const { return map_.graph(); }
   const KeyframeIndex& keyframes() const { return keyframes_; }
   // Loop closures the gate refused, in the order they were refused.
