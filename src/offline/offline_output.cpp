@@ -1,5 +1,6 @@
 #include "toro_ros/offline/offline_output.h"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -253,8 +254,18 @@ std::string describeSummary(const OfflineSummary& s) {
       << s.status.keyframes << " keyframes, " << s.status.constraints
       << " constraints; loop closures: " << k.loop_closures_received << " received, "
       << k.loop_closures_applied << " applied, " << k.loop_closures_refused << " refused, "
-      << s.status.pending_loop_closures << " pending\n"
-      << "chi2 before (odometry) " << s.chi2_odometry << ", after " << s.chi2_corrected << " ("
+      << s.status.pending_loop_closures << " pending\n";
+  // Applied is not in the map: a loop closure at weight 0 moves nothing (a lone right one the
+  // support never released looks, in the counts above, like one that corrected the map).
+  if (!s.status.down_weighted.empty()) {
+    const std::uint64_t still_held = std::min<std::uint64_t>(
+        k.loop_closures_held - std::min(k.loop_closures_held, k.loop_closures_released),
+        s.status.down_weighted.size());
+    out << "of them " << s.status.down_weighted.size() << " weighted below 0.5 at the end (robust), "
+        << still_held << " of those held since they arrived: nothing supported them "
+        << "(robust_hold_until_supported: false applies each at its robust weight)\n";
+  }
+  out << "chi2 before (odometry) " << s.chi2_odometry << ", after " << s.chi2_corrected << " ("
       << k.optimization_passes << " passes, " << s.run.finishes << " finishes)\n";
   if (s.has_score) out << describeScore(s.score);
   return out.str();

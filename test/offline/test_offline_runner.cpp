@@ -198,6 +198,22 @@ TEST(OfflineRunner, OptimalitySamplesAfterLoopClosuresFollowThemAndKeepTheirSpac
   EXPECT_NE(no_period.validate(), "");
 }
 
+// The printed summary says how many applied loop closures ended out of the map (weight below
+// 0.5) and how many of them the support never released: "applied" alone reads as corrected.
+TEST(OfflineRunner, SummaryNamesTheLoopClosuresThatEndedOutOfTheMap) {
+  OfflineSummary s;
+  s.status.counters.loop_closures_received = s.status.counters.loop_closures_applied = 5;
+  EXPECT_EQ(describeSummary(s).find("weighted below 0.5"), std::string::npos);
+  s.status.counters.loop_closures_held = 3;
+  s.status.counters.loop_closures_released = 2;
+  s.status.down_weighted.resize(2);
+  EXPECT_NE(
+      describeSummary(s).find("of them 2 weighted below 0.5 at the end (robust), 1 of those held since they "
+                              "arrived"),
+      std::string::npos)
+      << describeSummary(s);
+}
+
 TEST(OfflineRunner, ConstantSpeedBagWithDefaultConfigStillCorrects) {
   // A bag whose keyframes are not on the node's keyframe grid (spacing from the speed): the node
   // picks its own keyframes and matches loop-closure stamps within its tolerance.
