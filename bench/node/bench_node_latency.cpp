@@ -127,6 +127,15 @@ int main(int argc, char** argv) {
   std::map<std::size_t, unsigned long> merged_before;  // revisit (keyframes when sent) -> finishes merged
   std::set<std::size_t> merge_in_window;  // revisits answered when a merge may have been the answer
   std::size_t checked = 0;                // latencies looked at for merges so far
+  // Marks the answers since the last call whose revisit saw fewer merges than `merged_now`
+  // (the caller holds probe.mutex while the spinner runs).
+  auto markMergesUpTo = [&](std::size_t answered, unsigned long merged_now) {
+    for (; checked < answered; ++checked) {
+      const auto it = merged_before.find(probe.latencies[checked].first);
+      if (it == merged_before.end() || merged_now > it->second)
+        merge_in_window.insert(probe.latencies[checked].first);
+    }
+  };
   ros::WallRate pace(rate);
   for (std::size_t i = 0; i < total && ros::ok(); ++i) {
     const ros::Time now = ros::Time::now();
@@ -170,11 +179,7 @@ int main(int argc, char** argv) {
       toro_ros::GetStatus after;
       if (ros::service::call("/map_corrector/get_status", after)) {
         std::lock_guard<std::mutex> lock(probe.mutex);
-        for (; checked < answered; ++checked) {
-          const auto it = merged_before.find(probe.latencies[checked].first);
-          if (it == merged_before.end() || after.response.finishes_merged > it->second)
-            merge_in_window.insert(probe.latencies[checked].first);
-        }
+        markMergesUpTo(answered, after.response.finishes_merged);
       }
     }
     if (i % (10 * static_cast<std::size_t>(rate)) == 0) {
@@ -199,11 +204,7 @@ int main(int argc, char** argv) {
   ros::service::call("/map_corrector/get_status", s);
   const long rss_end = rssKiB(pid);
   spinner.stop();
-  for (; checked < probe.latencies.size(); ++checked) {  // answered during the last wait
-    const auto it = merged_before.find(probe.latencies[checked].first);
-    if (it == merged_before.end() || s.response.finishes_merged > it->second)
-      merge_in_window.insert(probe.latencies[checked].first);
-  }
+  markMergesUpTo(probe.latencies.size(), s.response.finishes_merged);  // answered during the last wait
   std::vector<double> all, last_quarter, no_merge, no_merge_last_quarter;
   for (const auto& [k, l] : probe.latencies) {
     all.push_back(l * 1e3);

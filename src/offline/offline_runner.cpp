@@ -239,8 +239,7 @@ OfflineRun OfflineRunner::run() {
           next_optimality += ros::Duration(options_.optimality_every_sec);
       }
     }
-    bar.update(run.bag_duration_sec > 0 ? (m.getTime() - begin).toSec() / run.bag_duration_sec : 1.0,
-               run.messages);
+    bar.update(run.bag_duration_sec > 0 ? stamp_sec / run.bag_duration_sec : 1.0, run.messages);
   }
   bar.finish(run.messages);
   if (warnings_.size() > kMaxPrintedWarnings)

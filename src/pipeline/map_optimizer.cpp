@@ -295,8 +295,8 @@ std::string MapOptimizer::addLoopClosure(const toro::Constraint& loop_closure, c
 double MapOptimizer::supportThreshold() const {
   const double dof = planar_ ? 3.0 : 6.0;
   const double quantile = toro::chiSquareQuantile(kSupportConfidence, dof);
-  if (tested_pairs_.count() < kMinPairsToAdaptSupport || tested_pairs_.samples() < kMinPairsToAdaptSupport)
-    return quantile;
+  // samples() <= count(): cycles closed to rounding are counted but are no sample of the scale.
+  if (tested_pairs_.samples() < kMinPairsToAdaptSupport) return quantile;
   // Senders whose covariances are far too large (parking-garage.g2o: residuals ~1e-4 of the
   // declared ones) make every cycle look consistent, wrong ones too: the threshold narrows by the
   // ratio of the tested pairs' low quantile to the chi-square's, never widens.  All tested pairs,
@@ -411,7 +411,7 @@ double MapOptimizer::mapPathThreshold(bool through_loop_closure) const {
   const RecentChi2& tested = through_loop_closure ? tested_paths_ : tested_odometry_paths_;
   const double lenience = through_loop_closure ? kPathLenience : kOdometryPathLenience;
   const double declared = lenience * toro::chiSquareQuantile(kSupportConfidence, dof);
-  if (tested.count() < kMinPathsToScale || tested.samples() < kMinPathsToScale) return declared;
+  if (tested.samples() < kMinPathsToScale) return declared;
   const double scale = tested.lowQuantile() / toro::chiSquareQuantile(kSupportScaleQuantile, dof);
   return declared * std::clamp(scale, kMinPathScale, 1.0);
 }
