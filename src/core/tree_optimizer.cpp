@@ -86,6 +86,7 @@ void TreeOptimizer::setGraph(const PoseGraph& graph, InitialGuess guess) {
   preconditioned_weight_.clear();
   robust_.clear();
   measured_axes_index_.clear();
+  odometry_with_unmeasured_axes_ = 0;
   clearParameters();
   for (std::size_t c = 0; c < graph_.numConstraints(); ++c) registerConstraint(c);
   rotation_weight_.assign(n, 0.0);

@@ -202,6 +202,7 @@ void TreeOptimizer::registerGroupConstraintIn(std::size_t c) {
   } else {
     measured_axes_index_.push_back(static_cast<int>(s.measured_axes.size()));
     s.measured_axes.push_back(stiffness);
+    if (!isLoopClosure(k)) ++odometry_with_unmeasured_axes_;
   }
 }
 

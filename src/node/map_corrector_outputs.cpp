@@ -201,6 +201,7 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
              std::to_string(s->counters.finishes_started) + " / " + std::to_string(s->counters.finishes_merged) +
                  " / " + std::to_string(s->counters.finishes_dropped));
   status.add("background finish running", s->finish_running ? "yes" : "no");
+  if (!s->finish_off_reason.empty()) status.add("background finish off", s->finish_off_reason);
   if (s->last_finish) {
     const FinishRecord& f = *s->last_finish;
     std::ostringstream last;

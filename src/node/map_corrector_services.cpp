@@ -108,6 +108,7 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
   res.finishes_merged = r->counters.finishes_merged;
   res.finishes_dropped = r->counters.finishes_dropped;
   res.finish_running = r->finish_running;
+  res.finish_off_reason = r->finish_off_reason;
   if (r->last_finish) {
     const FinishRecord& f = *r->last_finish;
     res.last_finish_merged = f.merged;

@@ -78,13 +78,18 @@ nav_msgs::Odometry odometryAtSample(const RobotTimeline& t, long sample, const G
     const long n = t.sample_of_keyframe[k + 1] - t.sample_of_keyframe[k];
     const double f = static_cast<double>(sample - t.sample_of_keyframe[k]) / static_cast<double>(n);
     if (f > 0) {
-      // The step's covariance accrues at a constant rate in the odom frame (as it is added at the
-      // keyframe, rotated by the step's end pose), so the covariance of any two samples differs
-      // by a positive semi-definite growth, also across a turn on the spot.
+      // The step's covariance accrues at a constant rate, each part as it will stand at the step's
+      // end (rotated by the end pose, carried back from the end position): an EKF's prediction then
+      // carries one sample's covariance into the next plus a positive semi-definite growth (the
+      // keyframer's "difference" rule reads exactly that), also across a turn on the spot, and the
+      // step's end gets the step's covariance exactly.  (Added as it stands at the end but not carried
+      // back, the growth between two samples is indefinite: f_j Q - f_i C Q C^T.)
       pose = toro::slerp(t.odom_T_base[k], t.odom_T_base[k + 1], f);
       const toro::Matrix6 b = blockRotation(t.odom_T_base[k + 1]);
-      covariance = carriedCovariance(covariance, pose.translation() - t.odom_T_base[k].translation()) +
-                   f * b * t.step_covariance[k] * b.transpose();
+      const toro::Matrix6 accrued = carriedCovariance(
+          b * t.step_covariance[k] * b.transpose(), pose.translation() - t.odom_T_base[k + 1].translation());
+      covariance =
+          carriedCovariance(covariance, pose.translation() - t.odom_T_base[k].translation()) + f * accrued;
     }
     // Body-frame velocity of the current step (constant over the step).
     const toro::Pose3 step = toro::relativePose(t.odom_T_base[k], t.odom_T_base[k + 1]);

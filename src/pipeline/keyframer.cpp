@@ -29,14 +29,28 @@ bool sameCovariance(const toro::Matrix6& a, const toro::Matrix6& b) {
   return true;
 }
 
+// Whether the sender marks an axis unmeasured: a variance at or above the threshold that the step left
+// as it was (diff_drive_controller's 1e6, an EKF's infinite z).  A large variance that changed without
+// growing is dead reckoning's accumulated one, shrunk by a fix or by the EKF's correlations: the step's
+// own variance is then unknown (the defaults), not unmeasured.  Reading it unmeasured would leave one
+// odometry step free along that axis, and the map's exact finish undetermined for good.
+bool pinnedUnmeasured(AxisReading older, AxisReading newer, double older_variance, double newer_variance,
+                      double scale) {
+  if (older != AxisReading::kUnmeasured || newer != AxisReading::kUnmeasured) return false;
+  if (!std::isfinite(newer_variance)) return true;   // infinite now: the sender says so
+  if (!std::isfinite(older_variance)) return false;  // finite after infinite: it changed
+  return std::abs(newer_variance - older_variance) <= kGrowthTolerance * scale;
+}
+
 // kDifference: the growth of the covariance over the step, covariance(newer) - F covariance(older)
 // F^T with F carrying the older one to the newer pose (carriedCovariance: an EKF's prediction; the
 // plain difference of a real EKF's covariances is indefinite in most steps, because a heading
 // error before the step moves the newer position sideways), read on the axes where it is meaningful.  An axis
 // that grew is read from its growth, however large the accumulated variance (dead reckoning's grows without
 // bound).  One that did not grow says nothing about the step: unmeasured if the sender marks it so (a
-// variance >= the threshold, e.g. pinned at 1e6), else unknown and the default (an EKF's two_d_mode z, roll
-// and pitch held at 1e-6 or 0; a variance an absolute fix shrank).
+// variance >= the threshold that the step left as it was, e.g. pinned at 1e6: pinnedUnmeasured), else
+// unknown and the default (an EKF's two_d_mode z, roll and pitch held at 1e-6 or 0; a variance, however
+// large, that an absolute fix or the EKF's correlations shrank).
 InformationResult differenceInformation(const toro::Matrix6& older, const toro::Matrix6& newer,
                                         const toro::Vector3& displacement, const KeyframerOptions& o) {
   // The older covariance carried to the newer pose first, as an EKF's prediction carries it, so
@@ -51,7 +65,7 @@ InformationResult differenceInformation(const toro::Matrix6& older, const toro::
     const double scale = std::max(std::abs(newer(i, i)), std::abs(older(i, i)));
     if (std::isfinite(grew) && grew > kGrowthTolerance * scale) {
       axes[i] = grew >= o.unmeasured_variance ? AxisReading::kUnmeasured : AxisReading::kMeasured;
-    } else if (read_newer[i] == AxisReading::kUnmeasured || read_older[i] == AxisReading::kUnmeasured) {
+    } else if (pinnedUnmeasured(read_older[i], read_newer[i], older(i, i), newer(i, i), scale)) {
       axes[i] = AxisReading::kUnmeasured;
       difference(i, i) = std::max(newer(i, i), older(i, i));  // the variance the sender gave
     } else {

@@ -704,15 +704,19 @@ OptimizeResult MapOptimizer::optimize(unsigned iterations, bool finish) {
 // ---- the background finish ------------------------------------------------------------------
 
 bool MapOptimizer::finishDetermined() {
-  const std::size_t unmeasured = optimizer_.constraintsWithUnmeasuredAxes();
+  // Loop closures with free axes do not count: the odometry chain determines every pose (its
+  // free axes only leave the loop closure's own residual free there).
+  const std::size_t unmeasured = optimizer_.odometryConstraintsWithUnmeasuredAxes();
   if (unmeasured == 0) return true;
-  if (!told_finish_undetermined_ && warn_)
-    warn_("background finish off for this map: " + std::to_string(unmeasured) +
-          " constraint(s) leave axes unmeasured (e.g. z, roll and pitch of a robot on a floor).  TORO moves "
-          "such constraints along their measured axes only, but the exact optimum of such a graph is not "
-          "determined along the others (it tilts the map to shorten its paths); for a robot on a floor set "
-          "planar: true, where the finish runs in the plane");
-  told_finish_undetermined_ = true;
+  if (finish_off_reason_.empty()) {
+    finish_off_reason_ =
+        std::to_string(unmeasured) +
+        " odometry step(s) leave axes unmeasured (e.g. z, roll and pitch of a robot on a floor).  TORO moves "
+        "such steps along their measured axes only, but the exact optimum of such a graph is not determined "
+        "along the others (it tilts the map to shorten its paths); for a robot on a floor set planar: true, "
+        "where the finish runs in the plane";
+    if (warn_) warn_("background finish off for this map: " + finish_off_reason_);
+  }
   return false;
 }
 
@@ -854,6 +858,7 @@ void MapOptimizer::clear() {
   last_finish_stamp_ = ros::Time();
   finished_chi2_ = kNaN;
   settled_constraints_ = 0;
+  finish_off_reason_.clear();
   // A finish still out belongs to the old graph: its merge is dropped by the structure.
   ++structure_;
   ++revision_;

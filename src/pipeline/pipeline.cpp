@@ -350,6 +350,7 @@ std::shared_ptr<const Snapshot> Pipeline::makeSnapshot() {
   s->counters = counters_;
   s->last_finish = map_.lastFinish();
   s->finish_running = map_.finishOutstanding();
+  s->finish_off_reason = map_.finishOffReason();
   return s;
 }
 
@@ -369,6 +370,7 @@ PipelineStatus Pipeline::status() const {
   s.robust_width = map_.robustWidth();
   s.last_finish = map_.lastFinish();
   s.finish_running = map_.finishOutstanding();
+  s.finish_off_reason = map_.finishOffReason();
   return s;
 }
 

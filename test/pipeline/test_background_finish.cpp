@@ -193,6 +193,45 @@ TEST(BackgroundFinish, AtMostOnePerMinimumIntervalOfMessageTimeAndOffWhenDisable
   EXPECT_FALSE(off.takeFinishJob());
 }
 
+// Only odometry with a free axis leaves the exact optimum undetermined: the chain fixes every pose
+// whatever axes a loop closure leaves free.  Such odometry switches the finish off for the map, says
+// why in the status once, and a reset forgets it.
+TEST(BackgroundFinish, OffOnlyForOdometryWithUnmeasuredAxesAndTheStatusSaysWhy) {
+  const DriftScenario sc = makeDriftingSquare(3);
+  const std::size_t lap = sc.odometry.size() / 3;
+  std::vector<std::string> warnings;
+  const Pipeline::WarningSink sink = [&](const std::string& w) { warnings.push_back(w); };
+  Pipeline free_loop_closure(finishOptions(), sink);
+  feed(free_loop_closure, sc, 0, lap + 1);
+  LoopClosure scan_match = trueLoopClosure(sc, 0, lap);
+  for (int k : {2, 3, 4}) scan_match.covariance[7 * k] = 1e6;  // a 2D scan matcher: z, roll, pitch free
+  free_loop_closure.handleLoopClosure(scan_match);
+  drain(free_loop_closure);
+  ASSERT_EQ(free_loop_closure.counters().loop_closures_applied, 1u);
+  EXPECT_TRUE(free_loop_closure.takeFinishJob());
+  EXPECT_EQ(free_loop_closure.status().finish_off_reason, "");
+
+  // diff_drive_controller in 3D mode: 1e6 on z, roll and pitch in every message.
+  DriftScenario pinned = sc;
+  for (nav_msgs::Odometry& m : pinned.odometry)
+    for (int k = 0; k < 6; ++k) m.pose.covariance[7 * k] = k >= 2 && k <= 4 ? 1e6 : 1e-3;
+  warnings.clear();
+  Pipeline free_odometry(finishOptions(), sink);
+  feed(free_odometry, pinned, 0, lap + 1);
+  free_odometry.handleLoopClosure(trueLoopClosure(pinned, 0, lap));
+  drain(free_odometry);
+  EXPECT_FALSE(free_odometry.takeFinishJob());
+  EXPECT_FALSE(free_odometry.takeFinishJob());
+  const std::string reason = free_odometry.status().finish_off_reason;
+  EXPECT_NE(reason.find("odometry step(s) leave axes unmeasured"), std::string::npos) << reason;
+  EXPECT_NE(reason.find("planar: true"), std::string::npos) << reason;
+  std::size_t said = 0;
+  for (const std::string& w : warnings) said += w.find("background finish off") != std::string::npos;
+  EXPECT_EQ(said, 1u);
+  free_odometry.reset("test");
+  EXPECT_EQ(free_odometry.status().finish_off_reason, "");
+}
+
 // Once a finish was merged it settles the map: a due full round re-weighs and runs no pass (its
 // passes, restarted at learning rate 1, would pull the map off the optimum).  Before any merge, as
 // without the finish, a round runs its passes.

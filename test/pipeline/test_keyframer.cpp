@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include "toro_ros/core/pose_graph.h"
 #include "toro_ros/pipeline/keyframer.h"
 
@@ -215,6 +217,40 @@ TEST(Keyframer, AGrowingCovarianceBeyondTheUnmeasuredThresholdIsStillItsGrowth) 
   const auto pinned = k.accept(b);
   EXPECT_EQ(pinned->information.axes[2], AxisReading::kUnmeasured);
   EXPECT_NEAR(pinned->information.information(2, 2), 1e-6, 1e-12);
+}
+
+TEST(Keyframer, ALargeVarianceThatShrankIsUnknownNotUnmeasured) {
+  // Dead reckoning far from the start: z's accumulated variance is past the threshold, and in this
+  // step it shrank a little (an EKF's correlations, a partial fix).  The step's own z variance is
+  // then unknown (the default), not unmeasured: one odometry step free along z would leave every
+  // later pose free along it, and the map's exact finish undetermined for the rest of the run.
+  KeyframerOptions o = options();
+  o.covariance_mode = OdometryCovarianceMode::kDifference;
+  Keyframer k(o);
+  OdometrySample a = sample(1, 0, 0), b = sample(11, 0, 0);  // standing still: nothing carried
+  a.covariance = 5e3 * toro::Matrix6::Identity();
+  b.covariance = (5e3 + 0.01) * toro::Matrix6::Identity();
+  b.covariance(2, 2) = 5e3 - 0.5;
+  k.accept(a);
+  const auto shrank = k.accept(b);
+  EXPECT_EQ(axisNames(shrank->information.axes, AxisReading::kMeasured), "x y roll pitch yaw");
+  EXPECT_EQ(axisNames(shrank->information.axes, AxisReading::kUnknown), "z");
+  EXPECT_NEAR(shrank->information.information(2, 2), 1 / (0.05 * 0.05), 1e-6);  // the default
+  // Past the threshold and left as it was: the sender pins it, unmeasured; so is a variance that is
+  // infinite now.  A finite one after an infinite one changed: unknown.
+  b.covariance(2, 2) = 5e3;
+  k.reset();
+  k.accept(a);
+  EXPECT_EQ(k.accept(b)->information.axes[2], AxisReading::kUnmeasured);
+  a.covariance(2, 2) = std::numeric_limits<double>::infinity();
+  b.covariance(2, 2) = 2e3;
+  k.reset();
+  k.accept(a);
+  EXPECT_EQ(k.accept(b)->information.axes[2], AxisReading::kUnknown);
+  b.covariance(2, 2) = std::numeric_limits<double>::infinity();
+  k.reset();
+  k.accept(a);
+  EXPECT_EQ(k.accept(b)->information.axes[2], AxisReading::kUnmeasured);
 }
 
 TEST(Keyframer, AnIndefiniteDifferenceIsRepairedNotThrownAway) {

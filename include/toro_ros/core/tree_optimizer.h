@@ -197,6 +197,11 @@ class TreeOptimizer {
   std::size_t constraintsWithUnmeasuredAxes() const {
     return planar_ ? planar_state_.measured_axes.size() : spatial_.measured_axes.size();
   }
+  // Those of them that are odometry (isLoopClosure false).  The odometry chain, every axis
+  // measured, determines every pose relative to the root, so the exact optimum is determined
+  // whatever axes the loop closures leave free; an odometry step with a free axis leaves it free
+  // for everything after the step unless loop closures happen to measure it.
+  std::size_t odometryConstraintsWithUnmeasuredAxes() const { return odometry_with_unmeasured_axes_; }
   // Whether the parameters are SE(2) (see Parameterization).
   bool planar() const { return planar_; }
   const ParameterTree& tree() const { return tree_; }
@@ -340,6 +345,7 @@ class TreeOptimizer {
   // Constraints with unmeasured axes move only along their measured ones: the projectors live in
   // the group state (measured_axes), indexed from here (-1: every axis measured).
   std::vector<int> measured_axes_index_;
+  std::size_t odometry_with_unmeasured_axes_ = 0;  // see odometryConstraintsWithUnmeasuredAxes
   std::vector<std::size_t> order_;       // constraints sorted by top-node level
   std::vector<int> top_level_;           // level of each constraint's top node (refreshStructure)
   bool structure_dirty_ = true;          // tree changed since refreshStructure()

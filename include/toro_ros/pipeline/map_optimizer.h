@@ -154,6 +154,9 @@ class MapOptimizer {
   bool mergeFinish(const FinishOutcome& outcome);
   bool finishOutstanding() const { return finish_outstanding_; }
   const std::optional<FinishRecord>& lastFinish() const { return last_finish_; }
+  // Why the background finish is off for this map ("" while it is not): odometry steps with free
+  // axes (finishDetermined).
+  const std::string& finishOffReason() const { return finish_off_reason_; }
 
   // Forgets everything (reset).  load: a saved graph, its loop-closure flags and rejected ones.
   void clear();
@@ -303,7 +306,7 @@ class MapOptimizer {
   // cannot be merged.
   std::uint64_t structure_ = 0;
   std::optional<FinishRecord> last_finish_;
-  bool told_finish_undetermined_ = false;
+  std::string finish_off_reason_;  // why finishDetermined() said no (said once); empty while it has not
   // The gate's candidate: the optimiser as it was before it, its constraint index and stamp.
   std::optional<toro::TreeOptimizer> before_gate_;
   std::size_t gate_constraint_ = 0;

@@ -119,6 +119,8 @@ struct PipelineStatus {
   // The newest background finish (nullopt before the first) and whether one is running now.
   std::optional<FinishRecord> last_finish;
   bool finish_running = false;
+  // Why the background finish is off for this map ("" while it is not; MapOptimizer::finishOffReason).
+  std::string finish_off_reason;
 };
 
 class Pipeline {

@@ -112,6 +112,7 @@ struct Snapshot {
   PipelineCounters counters;
   std::optional<FinishRecord> last_finish;  // the newest background finish (nullopt before any)
   bool finish_running = false;
+  std::string finish_off_reason;  // why the background finish is off for this map ("" if it is not)
 };
 
 }  // namespace toro_ros
