@@ -66,6 +66,8 @@ template <class Model>
 class FinishProblem {
  public:
   static constexpr int D = Model::kDim;
+  // Entries of the dense right-hand side of one innovation solve at most (32 MB).
+  static constexpr std::size_t kMaxInnovationRhs = std::size_t{1} << 22;
   using State = typename Model::State;
   using Vec = typename Model::Vec;
   using Mat = typename Model::Mat;
@@ -146,6 +148,15 @@ class FinishProblem {
     if (!set_aside_.empty()) refineWithSetAside(-b_, last_lambda_, &step);
     return step.allFinite() ? -step.dot(b_) : -1.0;
   }
+
+  // The innovation chi2 of each candidate, a constraint the problem does not hold, against the
+  // problem at states(): e^T (Sigma_z + J H^-1 J^T)^-1 e, e its error, Sigma_z its covariance, J
+  // its Jacobian and H the Hessian linearize() left (undamped; set-aside edges left out, which
+  // only makes H^-1 larger).  In a linear-Gaussian model this is the rise of the optimum's chi2
+  // when the candidate is added, chi-square distributed for a right one.  -1 for a candidate
+  // whose ends are not both nodes, and for all when H cannot be factorised.  Costs one
+  // factorisation and D solves per candidate.
+  std::vector<double> innovationChi2(const PoseGraph& graph, const std::vector<Constraint>& candidates);
 
   std::vector<State> retracted(const Eigen::VectorXd& step) const {
     std::vector<State> out = states_;
@@ -471,6 +482,75 @@ void FinishProblem<Model>::refineWithSetAside(const Eigen::VectorXd& rhs, double
     p = z + (rz_next / rz) * p;
     rz = rz_next;
   }
+}
+
+template <class Model>
+std::vector<double> FinishProblem<Model>::innovationChi2(const PoseGraph& graph,
+                                                         const std::vector<Constraint>& candidates) {
+  std::vector<double> out(candidates.size(), -1.0);
+  if (candidates.empty() || b_.size() == 0) return out;
+  // Undamped first; a Hessian at the edge of definiteness (a node held by one weak constraint)
+  // takes the least damping that factorises, which only narrows the predicted spread a little.
+  double* values = h_.valuePtr();
+  bool ok = cholesky_->factorize(h_);
+  const double scale = std::max(maxDiagonal(), 1e-300);
+  for (double damping = 1e-12; !ok && damping <= 1e-6; damping *= 100.0) {
+    for (int k = 0; k < diagonal_.size(); ++k) values[diagonal_index_[k]] = diagonal_[k] + damping * scale;
+    ok = cholesky_->factorize(h_);
+  }
+  for (int k = 0; k < diagonal_.size(); ++k) values[diagonal_index_[k]] = diagonal_[k];
+  factorized_ = false;  // no longer LM's last factorisation (estimatedNextDecrease)
+  if (!ok) return out;
+  // J^T of every candidate as columns (nonzero in the blocks of its two ends only), solved in
+  // batches of at most kMaxInnovationRhs entries so the dense right-hand side stays small.
+  struct Candidate {
+    std::size_t k;
+    int bi, bj;
+    typename Model::Lin lin;
+    Mat covariance;
+  };
+  std::vector<Candidate> usable;
+  for (std::size_t k = 0; k < candidates.size(); ++k) {
+    const Constraint& c = candidates[k];
+    if (!graph.hasNode(c.from) || !graph.hasNode(c.to)) continue;
+    Candidate u;
+    u.k = k;
+    const std::size_t i = graph.indexOf(c.from), j = graph.indexOf(c.to);
+    u.bi = block_[i];
+    u.bj = block_[j];
+    Model::linearize(states_[i], states_[j], Model::stateOf(c.measurement), &u.lin);
+    Matrix6 information = c.information;
+    if (Eigen::LLT<Matrix6>(information).info() != Eigen::Success && !repairInformation(information))
+      continue;
+    u.covariance = Model::informationOf(information).inverse();
+    usable.push_back(u);
+  }
+  const std::size_t rows = static_cast<std::size_t>(b_.size());
+  const std::size_t per_batch = std::max<std::size_t>(1, kMaxInnovationRhs / (rows * D));
+  for (std::size_t first = 0; first < usable.size(); first += per_batch) {
+    const std::size_t count = std::min(per_batch, usable.size() - first);
+    Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(b_.size(), static_cast<Eigen::Index>(count * D));
+    for (std::size_t m = 0; m < count; ++m) {
+      const Candidate& u = usable[first + m];
+      const auto col = static_cast<Eigen::Index>(m * D);
+      if (u.bi >= 0) rhs.block(u.bi * D, col, D, D) = u.lin.d_from.transpose();
+      if (u.bj >= 0) rhs.block(u.bj * D, col, D, D) += u.lin.d_to.transpose();
+    }
+    const Eigen::MatrixXd x = cholesky_->solveColumns(rhs);
+    for (std::size_t m = 0; m < count; ++m) {
+      const Candidate& u = usable[first + m];
+      const auto col = static_cast<Eigen::Index>(m * D);
+      Mat spread = Mat::Zero();  // J H^-1 J^T
+      if (u.bi >= 0) spread += u.lin.d_from * x.block(u.bi * D, col, D, D);
+      if (u.bj >= 0) spread += u.lin.d_to * x.block(u.bj * D, col, D, D);
+      const Mat s = u.covariance + 0.5 * (spread + spread.transpose());
+      const Eigen::LDLT<Mat> ldlt(s);
+      if (ldlt.info() != Eigen::Success) continue;
+      const double chi2 = u.lin.error.dot(ldlt.solve(u.lin.error));
+      if (std::isfinite(chi2) && chi2 >= 0.0) out[u.k] = chi2;
+    }
+  }
+  return out;
 }
 
 template <class Model>

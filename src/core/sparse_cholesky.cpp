@@ -112,6 +112,7 @@ class EigenStyleCholesky : public SparseCholesky {
     return solver_.info() == Eigen::Success;
   }
   Eigen::VectorXd solve(const Eigen::VectorXd& rhs) override { return solver_.solve(rhs); }
+  Eigen::MatrixXd solveColumns(const Eigen::MatrixXd& rhs) override { return solver_.solve(rhs); }
 
  protected:
   Solver solver_;

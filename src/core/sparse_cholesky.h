@@ -24,6 +24,8 @@ class SparseCholesky {
   // False if the matrix is not (numerically) positive definite.
   virtual bool factorize(const SparseMatrix& upper) = 0;
   virtual Eigen::VectorXd solve(const Eigen::VectorXd& rhs) = 0;
+  // Several right-hand sides at once (CHOLMOD's supernodal solve then runs on BLAS-3 blocks).
+  virtual Eigen::MatrixXd solveColumns(const Eigen::MatrixXd& rhs) = 0;
 };
 
 // A fill-reducing order of a symmetric pattern (both triangles given): position[i] is where row

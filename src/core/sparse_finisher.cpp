@@ -79,7 +79,8 @@ class LmRun {
                  options.robust.enabled() ? options.robust_set_aside_weight : 0.0),
         end_when_regained_(end_when_regained) {}
 
-  FinishReport run(PoseGraph& graph, const FinishCallback& callback);
+  FinishReport run(PoseGraph& graph, const FinishCallback& callback,
+                   const std::vector<Constraint>& candidates);
 
  private:
   // Solves for and tries one step; fills `it` and updates the state and report.stop.
@@ -98,7 +99,8 @@ class LmRun {
 };
 
 template <class Model>
-FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback) {
+FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback,
+                               const std::vector<Constraint>& candidates) {
   report_.held_nodes = problem_.numHeld();
   report_.set_aside = problem_.numSetAside();
   report_.repaired_information = problem_.repairedInformation();
@@ -124,6 +126,7 @@ FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback)
     if (callback) callback(it);
   }
   problem_.writeBack(graph);
+  report_.innovation_chi2 = problem_.innovationChi2(graph, candidates);
   report_.final_objective = chi2_;
   if (options_.robust.enabled()) {
     report_.final_chi2 = problem_.plainChi2(&report_.weights);
@@ -262,18 +265,20 @@ namespace {
 // factorisation (at most kMaxSetAsideRounds rounds; the last one runs to the end regardless,
 // exact through the conjugate-gradient correction); one report.
 template <class Model>
-FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const FinishCallback& callback) {
+FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const FinishCallback& callback,
+                          const std::vector<Constraint>& candidates) {
   FinishReport total;
   FinishOptions round_options = options;
   for (std::size_t round = 1;; ++round) {
     LmRun<Model> run(graph, round_options, round < kMaxSetAsideRounds);
-    FinishReport r = run.run(graph, callback);
+    FinishReport r = run.run(graph, callback, candidates);
     if (round == 1) {
       total = r;
     } else {
       total.final_chi2 = r.final_chi2;
       total.final_objective = r.final_objective;
       total.weights = std::move(r.weights);
+      total.innovation_chi2 = std::move(r.innovation_chi2);
       total.iterations += r.iterations;
       total.stop = r.stop;
       total.set_aside = r.set_aside;
@@ -293,10 +298,11 @@ FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const 
 
 }  // namespace
 
-FinishReport LevenbergMarquardt::optimize(PoseGraph& graph, const FinishCallback& callback) const {
+FinishReport LevenbergMarquardt::optimize(PoseGraph& graph, const FinishCallback& callback,
+                                          const std::vector<Constraint>& candidates) const {
   if (graph.dimension() == GraphDimension::k2D)
-    return optimizeWith<detail::ModelSE2>(graph, options_, callback);
-  return optimizeWith<detail::ModelSE3>(graph, options_, callback);
+    return optimizeWith<detail::ModelSE2>(graph, options_, callback, candidates);
+  return optimizeWith<detail::ModelSE3>(graph, options_, callback, candidates);
 }
 
 }  // namespace toro

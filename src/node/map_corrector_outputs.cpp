@@ -183,8 +183,10 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   status.add("loop closures pending", s->pending_loop_closures);
   status.add("loop closures rejected", s->counters.loop_closures_rejected);
   status.add("loop closures readmitted", s->counters.loop_closures_readmitted);
-  status.add("loop closures held for support / released", std::to_string(s->counters.loop_closures_held) + " / " +
-                                                               std::to_string(s->counters.loop_closures_released));
+  status.add("loop closures held for support / released (by a finish)",
+             std::to_string(s->counters.loop_closures_held) + " / " +
+                 std::to_string(s->counters.loop_closures_released) + " (" +
+                 std::to_string(s->counters.loop_closures_released_predicted) + ")");
   status.add("loop closures down-weighted (robust)", s->down_weighted_loop_closures);
   status.add("robust kernel width", s->robust_width);
   // The same counts as ~get_status's refused_reasons/refused_counts, one key per reason.

@@ -128,6 +128,7 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
   res.loop_closures_readmitted = r->counters.loop_closures_readmitted;
   res.loop_closures_held = r->counters.loop_closures_held;
   res.loop_closures_released = r->counters.loop_closures_released;
+  res.loop_closures_released_predicted = r->counters.loop_closures_released_predicted;
   res.autosaves = r->counters.autosaves;
   res.autosave_failures = r->counters.autosave_failures;
   res.odometry_covariance_rule = r->odometry_covariance_rule;

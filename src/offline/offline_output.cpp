@@ -165,7 +165,9 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
   writeCurveJson(out, s.run.curve);
   writeOptimalityJson(out, s.run.optimality);
   out << "  \"loop_closures_held\": " << s.status.counters.loop_closures_held
-      << ",\n  \"loop_closures_released\": " << s.status.counters.loop_closures_released << ",\n";
+      << ",\n  \"loop_closures_released\": " << s.status.counters.loop_closures_released
+      << ",\n  \"loop_closures_released_predicted\": " << s.status.counters.loop_closures_released_predicted
+      << ",\n";
   out << "  \"down_weighted_loop_closures\": [";
   for (std::size_t i = 0; i < s.status.down_weighted.size(); ++i) {
     const DownWeightedLoopClosure& d = s.status.down_weighted[i];

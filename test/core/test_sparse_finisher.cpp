@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "shared_datasets.h"
+#include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/finish_residuals.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
@@ -129,6 +130,43 @@ TEST(SparseFinisher, ReachesTheMinimumOfASmall3DGraph) {
   EXPECT_NEAR(r2.final_chi2, r.final_chi2, 1e-9 * r.final_chi2);
   for (const Node& n : g.nodes())
     EXPECT_LT((n.pose.translation() - other.pose(n.id).translation()).norm(), 1e-5);
+}
+
+// The innovation of a constraint left out of the graph is what adding it costs the optimum (to
+// first order; here the noise is small enough for the linear model to hold within a few %).
+TEST(SparseFinisher, InnovationOfALeftOutConstraintIsTheRiseOfTheOptimumWhenItIsAdded) {
+  for (const bool planar : {false, true}) {
+    for (unsigned seed : {41u, 42u, 43u}) {
+      SCOPED_TRACE((planar ? "2D seed " : "3D seed ") + std::to_string(seed));
+      const PoseGraph full = planar ? noisyGraph2D(seed) : noisyGraph3D(seed);
+      PoseGraph without;
+      without.setDimension(full.dimension());
+      for (const Node& n : full.nodes()) without.addNode(n.id, n.pose);
+      const std::size_t left_out = full.numConstraints() - 1;  // a chord
+      for (std::size_t c = 0; c < left_out; ++c) without.addConstraint(full.constraints()[c]);
+      const Constraint candidate = full.constraints()[left_out];
+      Constraint wrong = candidate;
+      wrong.measurement =
+          candidate.measurement * Pose3::fromRollPitchYaw(6.0, -5.0, 0, 0, 0, 0.8);  // 8 m off
+      Constraint elsewhere = candidate;
+      elsewhere.to = 1000;  // not a node
+      const FinishReport r =
+          LevenbergMarquardt(tightOptions()).optimize(without, {}, {candidate, wrong, elsewhere});
+      ASSERT_EQ(r.innovation_chi2.size(), 3u);
+      PoseGraph with = without;
+      with.addConstraint(candidate);
+      const double rise = LevenbergMarquardt(tightOptions()).optimize(with).final_chi2 - r.final_chi2;
+      ASSERT_GT(rise, 0.0);
+      EXPECT_NEAR(r.innovation_chi2[0], rise, 0.05 * rise);
+      // Its own chi2 at the optimum without it is larger: the map's uncertainty is not in that.
+      PoseGraph at_optimum_without = without;
+      at_optimum_without.addConstraint(candidate);
+      EXPECT_GT(constraintChi2(at_optimum_without, left_out), r.innovation_chi2[0]);
+      EXPECT_GT(r.innovation_chi2[1], chiSquareQuantile(0.999, planar ? 3 : 6));  // refused at 0.999
+      EXPECT_GT(r.innovation_chi2[1], 10.0 * r.innovation_chi2[0]);
+      EXPECT_EQ(r.innovation_chi2[2], -1.0);
+    }
+  }
 }
 
 TEST(SparseFinisher, ReportsEveryIterationAndChi2DecreasesMonotonically) {

@@ -193,6 +193,83 @@ TEST(BackgroundFinish, AtMostOnePerMinimumIntervalOfMessageTimeAndOffWhenDisable
   EXPECT_FALSE(off.takeFinishJob());
 }
 
+// A loop closure that closes a large loop alone has no neighbour to agree with it, so the support
+// holds it; the finished map, whose uncertainty between its ends it is measured against, releases
+// a right one and keeps a wrong one held.
+TEST(BackgroundFinish, ALoneRightLoopClosureIsReleasedByTheFinishedMapAndAWrongOneIsNot) {
+  const DriftScenario sc = makeDriftingSquare(2);
+  const std::size_t revisit = 225;  // lap 2, a quarter of the first side in
+  const std::size_t lone_at = 350;  // lap 2, halfway along the third side
+  const auto run = [&](const toro::Pose3& error) {
+    PipelineOptions o = finishOptions();
+    o.optimization.hold_until_supported = true;  // the node's default (the test options turn it off)
+    Pipeline p(o);
+    feed(p, sc, 0, revisit + 1);
+    // A first revisit, reported keyframe by keyframe: its loop closures support each other.
+    for (const LoopClosure& lc : testing::revisitLoopClosures(sc, 25, revisit)) p.handleLoopClosure(lc);
+    drain(p);
+    std::optional<FinishJob> first = p.takeFinishJob();
+    EXPECT_TRUE(first && p.mergeFinish(runFinishJob(std::move(*first))));
+    feed(p, sc, revisit + 1, lone_at + 1);
+    const std::uint64_t held = p.counters().loop_closures_held;
+    LoopClosure lone = trueLoopClosure(sc, lone_at - 200, lone_at);
+    lone.from_T_to = poseToMsg(poseFromMsg(lone.from_T_to) * error);
+    p.handleLoopClosure(lone);
+    drain(p);
+    EXPECT_EQ(p.counters().loop_closures_held, held + 1);  // nothing near it agrees: held
+    std::optional<FinishJob> job = p.takeFinishJob();
+    EXPECT_TRUE(job);
+    if (!job) return p.counters().loop_closures_released_predicted;
+    EXPECT_EQ(job->innovation_candidates.size(), 1u);
+    const FinishOutcome outcome = runFinishJob(std::move(*job));
+    // Measured: innovation 2.9 (right) and 6.7 (wrong) against 16.8 x 7.1 / (6 x 5) = 4.0.
+    EXPECT_EQ(outcome.innovations.size(), 1u);
+    EXPECT_EQ(outcome.loop_closure_weight, 5.0);
+    EXPECT_TRUE(p.mergeFinish(outcome));
+    return p.counters().loop_closures_released_predicted;
+  };
+  EXPECT_EQ(run(toro::Pose3()), 1u);
+  EXPECT_EQ(run(toro::Pose3::fromRollPitchYaw(1.5, -1.0, 0, 0, 0, 0.3)), 0u);  // 1.8 m and 17 degrees off
+}
+
+// A first revisit reported all at once while finishes run beside it (as the node's worker runs
+// them): the loop closures held on arrival make finishes due, and those released while a finish
+// ran (the fifth's support) are corrected after its merge, not set back to the finish's poses.
+TEST(BackgroundFinish, LoopClosuresReleasedWhileAFinishRunsAreCorrectedAfterItsMerge) {
+  const DriftScenario sc = makeDriftingSquare();
+  PipelineOptions o;  // the node's defaults (config/map_corrector.yaml)
+  o.keyframer.angle_rad = 0.35;
+  const std::size_t last = sc.odometry.size() - 1;
+  const double raw =
+      (poseFromMsg(sc.odometry[last].pose.pose).translation() - sc.truth[last].translation()).norm();
+  ASSERT_GT(raw, 1.0);
+  const std::vector<LoopClosure> revisit = testing::revisitLoopClosures(sc, 0, last);
+  // The finish taken after the first loop closure merges after the `merge_after`-th.
+  for (std::size_t merge_after = 1; merge_after <= revisit.size(); ++merge_after) {
+    SCOPED_TRACE("merged after loop closure " + std::to_string(merge_after));
+    Pipeline p(o);
+    feed(p, sc, 0, sc.odometry.size());
+    std::optional<FinishJob> running;
+    for (std::size_t k = 0; k < revisit.size(); ++k) {
+      p.handleLoopClosure(revisit[k]);
+      drain(p);
+      if (!running) running = p.takeFinishJob();
+      if (k + 1 == merge_after && running) {
+        EXPECT_TRUE(p.mergeFinish(runFinishJob(std::move(*running))));
+        drain(p);
+        running = p.takeFinishJob();
+      }
+    }
+    if (running) EXPECT_TRUE(p.mergeFinish(runFinishJob(std::move(*running))));
+    drain(p);
+    EXPECT_EQ(p.counters().loop_closures_released, 5u);
+    EXPECT_EQ(p.makeSnapshot()->down_weighted_loop_closures, 0u);
+    const double corrected =
+        (p.makeSnapshot()->keyframes.back().map_T_base.translation() - sc.truth[last].translation()).norm();
+    EXPECT_LT(corrected, 0.1 * raw) << "raw " << raw;
+  }
+}
+
 // Only odometry with a free axis leaves the exact optimum undetermined: the chain fixes every pose
 // whatever axes a loop closure leaves free.  Such odometry switches the finish off for the map, says
 // why in the status once, and a reset forgets it.

@@ -146,6 +146,11 @@ struct FinishReport {
   double seconds = 0.0;
   double factorization_seconds = 0.0;  // of which: numeric factorisations and solves
   std::vector<FinishIteration> history;
+  // Per candidate of optimize(), in its order: e^T (Sigma_z + J H^-1 J^T)^-1 e at the finished
+  // poses (H the finished graph's Hessian; units of the g2o chi2), the rise of the optimum's chi2
+  // it would bring to first order, chi-square with 6 (3 in 2D) degrees of freedom for a right
+  // one.  -1 where it cannot be told (an end not in the graph, a Hessian that does not factorise).
+  std::vector<double> innovation_chi2;
 };
 
 using FinishCallback = std::function<void(const FinishIteration&)>;
@@ -160,7 +165,10 @@ class LevenbergMarquardt {
   // Information matrices that are not positive definite are repaired (repairInformation) for the
   // solve only and counted in the report; the graph's constraints are left as they are.
   // Throws std::runtime_error if the sparse factorisation fails for a reason damping cannot cure.
-  FinishReport optimize(PoseGraph& graph, const FinishCallback& callback = {}) const;
+  // `candidates`: constraints not in the graph (e.g. loop closures held out of it) whose
+  // innovation chi2 against the finished graph the report gives (innovation_chi2).
+  FinishReport optimize(PoseGraph& graph, const FinishCallback& callback = {},
+                        const std::vector<Constraint>& candidates = {}) const;
 
   const FinishOptions& options() const { return options_; }
 

@@ -96,6 +96,11 @@ struct FinishJob {
   // below toro::FinishOptions's set-aside weight are left out (they only add fill-in).
   std::vector<double> weights;
   toro::FinishOptions options;
+  // Held loop closures (constraint indices) whose innovation against the finished map the
+  // outcome gives: the test by what the whole graph says of them (MapOptimizer::mergeFinish).
+  std::vector<std::size_t> innovation_candidates;
+  double loop_closure_weight =
+      0.0;  // sum over loop closures of min(1, weight): the finish's redundancy / dof
 };
 
 struct FinishOutcome {
@@ -110,6 +115,10 @@ struct FinishOutcome {
   double chi2_after = 0.0;
   std::size_t iterations = 0;
   double seconds = 0.0;  // wall time of the finish (reported only)
+  // Per job.innovation_candidates entry: (constraint index, toro::FinishReport::innovation_chi2).
+  std::vector<std::pair<std::size_t, double>> innovations;
+  double loop_closure_weight = 0.0;   // the job's
+  std::vector<std::size_t> left_out;  // constraints the finish left out (weight below its set-aside weight)
 };
 
 // Runs the job's finish.  Thread-safe (touches nothing but the job); never throws: a failure is
@@ -197,6 +206,14 @@ class MapOptimizer {
   void reweighRound();
   OptimizeResult finishNow(unsigned iterations);
   FinishJob makeFinishJob(unsigned iterations) const;
+  // Held loop closures for the finish to test by their innovation (FinishJob::innovation_candidates):
+  // those tested longest ago first, at most kInnovationTestsPerFinish.
+  std::vector<std::size_t> innovationCandidates(const FinishJob& job);
+  // Sum over loop closures of min(1, weight): the redundancy of a finish over its dof.
+  double loopClosureWeight(const std::vector<double>& weights) const;
+  // Releases the held loop closures the finished map predicts (FinishOutcome::innovations); true
+  // if any.
+  bool releasePredicted(const FinishOutcome& outcome);
   // False (and said once) when constraints leave axes unmeasured: the background finish is off.
   bool finishDetermined();
   // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints.
@@ -224,6 +241,9 @@ class MapOptimizer {
   // Held c may count now: agreesWithMap, or within kReleaseWidths of the map and its evidence.
   bool agreesWithSettledMap(std::size_t c);
   double supportThreshold() const;
+  // The innovation chi2 a held loop closure must be within to be released by the finish
+  // (releasePredicted); -1 while too few loop closures count to read the covariances' scale.
+  double innovationThreshold(const FinishOutcome& outcome) const;
   // Ends within the support window: +1 the odometry between them agrees, -1 it contradicts; 0
   // farther apart (or not connected by odometry): the odometry cannot tell.
   // `threshold`: supportThreshold(), taken once by the caller (it sorts the tested pairs' sample,
@@ -306,7 +326,13 @@ class MapOptimizer {
   // cannot be merged.
   std::uint64_t structure_ = 0;
   std::optional<FinishRecord> last_finish_;
-  std::string finish_off_reason_;  // why finishDetermined() said no (said once); empty while it has not
+  std::string finish_off_reason_;
+  // Per constraint: the finish sequence that last tested its innovation (0: never).
+  std::vector<std::uint64_t> innovation_tested_;
+  std::uint64_t innovation_round_ = 0;     // innovation test batches so far
+  double innovation_tested_weight_ = 0.0;  // loopClosureWeight at the last batch
+  bool held_since_finish_ = false;         // a loop closure was held since the last finish was taken  // why
+                                           // finishDetermined() said no (said once); empty while it has not
   // The gate's candidate: the optimiser as it was before it, its constraint index and stamp.
   std::optional<toro::TreeOptimizer> before_gate_;
   std::size_t gate_constraint_ = 0;

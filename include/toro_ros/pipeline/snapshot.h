@@ -30,6 +30,7 @@ struct PipelineCounters {
   // arrived, and those of them released since (a neighbour or the map agreed).
   std::uint64_t loop_closures_held = 0;
   std::uint64_t loop_closures_released = 0;
+  std::uint64_t loop_closures_released_predicted = 0;  // of those, by a finish (their innovation)
   std::uint64_t time_jump_resets = 0;
   std::uint64_t resets = 0;               // all resets (time jumps, service, load)
   std::uint64_t optimization_passes = 0;  // full and affected passes run
