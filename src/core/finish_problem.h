@@ -155,7 +155,7 @@ class FinishProblem {
   // only makes H^-1 larger).  In a linear-Gaussian model this is the rise of the optimum's chi2
   // when the candidate is added, chi-square distributed for a right one.  -1 for a candidate
   // whose ends are not both nodes, and for all when H cannot be factorised.  Costs one
-  // factorisation and D solves per candidate.
+  // factorisation and one solve with D right-hand-side columns per candidate, solved together.
   std::vector<double> innovationChi2(const PoseGraph& graph, const std::vector<Constraint>& candidates);
 
   std::vector<State> retracted(const Eigen::VectorXd& step) const {

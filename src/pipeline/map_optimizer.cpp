@@ -115,9 +115,9 @@ constexpr double kReleaseWidths = 10.0;
 // support off).  A first revisit releases its loop closures at its fifth.
 constexpr std::uint64_t kHeldBeforeAdvice = 10;
 
-// Held loop closures whose innovation one background finish tests (each one costs a solve with
-// the finish's factorisation per degree of freedom; the rest wait for later finishes, those
-// tested longest ago first).
+// Held loop closures whose innovation one background finish tests (each one adds a column per
+// degree of freedom to the solve with the finish's factorisation; the rest wait for later
+// finishes, those tested longest ago first).
 constexpr std::size_t kInnovationTestsPerFinish = 8;
 // A held loop closure is released by what the whole graph says of it when its innovation against
 // the finished map (toro::FinishReport::innovation_chi2: its residual against its own covariance
@@ -533,7 +533,7 @@ void MapOptimizer::judgeSupport(std::size_t c) {
     // covariances' scale: before, a finish could release nothing and only disturbs the first
     // revisit's support (merged between its loop closures, its map re-weighs them on the
     // uncorrected poses).
-    if (loopClosureWeight(optimizer_.weights()) >= kMinLoopClosuresForScale) held_since_finish_ = true;
+    if (scaleReadable()) held_since_finish_ = true;
     ++counters_->loop_closures_held;
     if (counters_->loop_closures_held == kHeldBeforeAdvice && counters_->loop_closures_released == 0 && warn_)
       warn_(std::to_string(kHeldBeforeAdvice) +
@@ -573,7 +573,7 @@ std::vector<std::size_t> MapOptimizer::innovationCandidates(const FinishJob& job
   std::sort(held.begin(), held.end());
   ++innovation_round_;
   for (std::size_t c : held) innovation_tested_[c] = innovation_round_;
-  innovation_tested_weight_ = loopClosureWeight(job.weights);
+  innovation_tested_weight_ = job.loop_closure_weight;
   return held;
 }
 
@@ -582,6 +582,14 @@ double MapOptimizer::loopClosureWeight(const std::vector<double>& weights) const
   for (std::size_t c = 0; c < is_loop_closure_.size() && c < weights.size(); ++c)
     if (is_loop_closure_[c]) sum += std::min(1.0, weights[c]);
   return sum;
+}
+
+bool MapOptimizer::scaleReadable() const {
+  const std::vector<double>& weights = optimizer_.weights();
+  double sum = 0.0;
+  for (std::size_t c = 0; c < is_loop_closure_.size() && c < weights.size(); ++c)
+    if (is_loop_closure_[c] && (sum += std::min(1.0, weights[c])) >= kMinLoopClosuresForScale) return true;
+  return false;
 }
 
 bool MapOptimizer::releasePredicted(const FinishOutcome& outcome) {
@@ -734,8 +742,8 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
   bool released = false, last_round_released = false;
   for (std::size_t round = 0; round < kMaxFinishRounds; ++round) {
     FinishJob job = makeFinishJob(iterations);
-    job.innovation_candidates = innovationCandidates(job);
     job.loop_closure_weight = loopClosureWeight(job.weights);
+    job.innovation_candidates = innovationCandidates(job);
     outcome = runFinishJob(std::move(job));
     if (!outcome.success) break;
     seconds += outcome.seconds;

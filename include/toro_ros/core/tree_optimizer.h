@@ -192,15 +192,11 @@ class TreeOptimizer {
 
   // The graph with the current pose estimates (2D, exactly planar, when planar()).
   const PoseGraph& graph() const { return graph_; }
-  // Constraints with an axis whose information is negligible (kUnmeasuredInformationRatio): the
-  // passes move them along their measured axes only.
-  std::size_t constraintsWithUnmeasuredAxes() const {
-    return planar_ ? planar_state_.measured_axes.size() : spatial_.measured_axes.size();
-  }
-  // Those of them that are odometry (isLoopClosure false).  The odometry chain, every axis
-  // measured, determines every pose relative to the root, so the exact optimum is determined
-  // whatever axes the loop closures leave free; an odometry step with a free axis leaves it free
-  // for everything after the step unless loop closures happen to measure it.
+  // Odometry constraints (isLoopClosure false) with an axis whose information is negligible
+  // (kUnmeasuredInformationRatio): the passes move them along their measured axes only.  The
+  // odometry chain, every axis measured, determines every pose relative to the root, so the exact
+  // optimum is determined whatever axes the loop closures leave free; an odometry step with a free
+  // axis leaves it free for everything after the step unless loop closures happen to measure it.
   std::size_t odometryConstraintsWithUnmeasuredAxes() const { return odometry_with_unmeasured_axes_; }
   // Whether the parameters are SE(2) (see Parameterization).
   bool planar() const { return planar_; }

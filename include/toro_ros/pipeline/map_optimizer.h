@@ -99,8 +99,8 @@ struct FinishJob {
   // Held loop closures (constraint indices) whose innovation against the finished map the
   // outcome gives: the test by what the whole graph says of them (MapOptimizer::mergeFinish).
   std::vector<std::size_t> innovation_candidates;
-  double loop_closure_weight =
-      0.0;  // sum over loop closures of min(1, weight): the finish's redundancy / dof
+  // Sum over loop closures of min(1, weight): the finish's redundancy over its dof.
+  double loop_closure_weight = 0.0;
 };
 
 struct FinishOutcome {
@@ -207,10 +207,14 @@ class MapOptimizer {
   OptimizeResult finishNow(unsigned iterations);
   FinishJob makeFinishJob(unsigned iterations) const;
   // Held loop closures for the finish to test by their innovation (FinishJob::innovation_candidates):
-  // those tested longest ago first, at most kInnovationTestsPerFinish.
+  // those tested longest ago first, at most kInnovationTestsPerFinish.  `job.loop_closure_weight`
+  // must be set (it is remembered for the next re-test, kInnovationRetestGrowth).
   std::vector<std::size_t> innovationCandidates(const FinishJob& job);
   // Sum over loop closures of min(1, weight): the redundancy of a finish over its dof.
   double loopClosureWeight(const std::vector<double>& weights) const;
+  // Whether loopClosureWeight(optimizer_.weights()) reaches kMinLoopClosuresForScale (stops there:
+  // asked at every held arrival).
+  bool scaleReadable() const;
   // Releases the held loop closures the finished map predicts (FinishOutcome::innovations); true
   // if any.
   bool releasePredicted(const FinishOutcome& outcome);
@@ -326,13 +330,12 @@ class MapOptimizer {
   // cannot be merged.
   std::uint64_t structure_ = 0;
   std::optional<FinishRecord> last_finish_;
-  std::string finish_off_reason_;
+  std::string finish_off_reason_;  // why finishDetermined() said no (said once); "" while it has not
   // Per constraint: the finish sequence that last tested its innovation (0: never).
   std::vector<std::uint64_t> innovation_tested_;
   std::uint64_t innovation_round_ = 0;     // innovation test batches so far
   double innovation_tested_weight_ = 0.0;  // loopClosureWeight at the last batch
-  bool held_since_finish_ = false;         // a loop closure was held since the last finish was taken  // why
-                                           // finishDetermined() said no (said once); empty while it has not
+  bool held_since_finish_ = false;         // a loop closure was held since the last finish was taken
   // The gate's candidate: the optimiser as it was before it, its constraint index and stamp.
   std::optional<toro::TreeOptimizer> before_gate_;
   std::size_t gate_constraint_ = 0;
