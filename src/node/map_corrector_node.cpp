@@ -98,6 +98,7 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
 MapCorrectorNode::~MapCorrectorNode() {
   // Stop the producers first, then the worker: flag, wake it, join.
   tf_timer_.stop();
+  correction_timer_.stop();
   visualization_timer_.stop();
   diagnostics_timer_.stop();
   for (ros::Subscriber& sub : input_subs_) sub.shutdown();
@@ -143,6 +144,11 @@ void MapCorrectorNode::startTimers() {
   ros::NodeHandle tf_nh(nh_);
   tf_nh.setCallbackQueue(&tf_queue_);
   tf_timer_ = tf_nh.createTimer(ros::Duration(1.0 / o->tf_rate_hz), &MapCorrectorNode::tfTimerCallback, this);
+  // Always running, it does nothing unless a correction was deferred (a flag read under tf_mutex_,
+  // 20 times a second): a one-shot timer restarted from the worker would have to be stopped
+  // under the lock its own callback takes.
+  correction_timer_ = tf_nh.createWallTimer(ros::WallDuration(MapToOdomSchedule::kCorrectionSpacingSec),
+                                            &MapCorrectorNode::correctionTimerCallback, this);
   tf_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &tf_queue_);
   tf_spinner_->start();
 

@@ -31,6 +31,15 @@ bool samePose(const toro::Pose3& a, const toro::Pose3& b) {
 
 void MapCorrectorNode::tfTimerCallback(const ros::TimerEvent&) { sendMapToOdom(nullptr); }
 
+void MapCorrectorNode::correctionTimerCallback(const ros::WallTimerEvent&) {
+  {
+    std::lock_guard<std::mutex> lock(tf_mutex_);
+    if (!tf_schedule_.retryDue(ros::WallTime::now().toSec())) return;
+  }
+  const std::shared_ptr<const Snapshot> newest = worker_->snapshot();
+  sendMapToOdom(newest.get());
+}
+
 void MapCorrectorNode::sendMapToOdom(const Snapshot* correction) {
   // The tick reads the worker's snapshot under the lock: a correction sent meanwhile from a newer
   // snapshot (published before its observer runs) is then never followed by an older map->odom.
@@ -43,21 +52,16 @@ void MapCorrectorNode::sendMapToOdom(const Snapshot* correction) {
   const std::shared_ptr<const NodeOptions> o = options();
   // Stamped ahead so that tf lookups at "now" made by other nodes find it before the next tick.
   const ros::Time stamp = now + ros::Duration(o->transform_tolerance_sec);
-  if (correction) {
-    // A new keyframe moves map->odom by rounding only (~1e-15); a loop closure's pass, a merged
-    // finish or a full round by far more.  Sent at once, the correction does not wait up to a tick
-    // (20 ms at 50 Hz); at most once a tick, so full rounds cannot raise the rate above twice it.
-    const toro::Pose3 moved = last_tf_map_T_odom_.inverse() * snapshot.map_T_odom;
-    if (correction_sent_since_tick_ ||
-        !(moved.translation().norm() > kCorrectionMetres || moved.angle() > kCorrectionRadians))
-      return;
-  }
-  // Under sim time the timer can fire twice between /clock ticks; the same stamp again would only
-  // make tf warn TF_REPEATED_DATA.  (A stamp behind the last one is a clock jump: publish it.)
-  if (stamp == last_tf_stamp_) return;
-  last_tf_stamp_ = stamp;
+  const double wall = ros::WallTime::now().toSec();
+  // A new keyframe moves map->odom by rounding only (~1e-15); a loop closure's pass, a merged
+  // finish or a full round by far more.
+  const toro::Pose3 moved = last_tf_map_T_odom_.inverse() * snapshot.map_T_odom;
+  const bool has_moved = moved.translation().norm() > kCorrectionMetres || moved.angle() > kCorrectionRadians;
+  const MapToOdomSchedule::Decision decision =
+      correction ? tf_schedule_.correction(stamp, wall, has_moved) : tf_schedule_.tick(stamp);
+  if (decision != MapToOdomSchedule::Decision::kSend) return;
+  tf_schedule_.sent(stamp, wall, correction != nullptr);
   last_tf_map_T_odom_ = snapshot.map_T_odom;
-  correction_sent_since_tick_ = correction != nullptr;
   geometry_msgs::TransformStamped t;
   t.header.stamp = stamp;
   t.header.frame_id = o->map_frame;

@@ -32,6 +32,7 @@
 #include "toro_ros/MapCorrectorConfig.h"
 #include "toro_ros/Optimize.h"
 #include "toro_ros/node/input_health.h"
+#include "toro_ros/node/map_to_odom_schedule.h"
 #include "toro_ros/node/node_options.h"
 #include "toro_ros/node/pipeline_worker.h"
 #include "toro_ros/pipeline/graph_directory.h"
@@ -65,8 +66,10 @@ class MapCorrectorNode {
   // Sends map->odom stamped transform_tolerance_sec ahead of now, unless that stamp went out
   // already.  nullptr: the tick, from the worker's snapshot.  A snapshot (the worker's observer,
   // after it became the worker's): only when an optimisation moved the map since the last one
-  // sent, at most once between two ticks.
+  // sent; when that cannot go out yet (MapToOdomSchedule) the correction timer retries.
   void sendMapToOdom(const Snapshot* correction);
+  // Retries a deferred correction, from the worker's newest snapshot.
+  void correctionTimerCallback(const ros::WallTimerEvent&);
   // Wall time: under simulated time the clock stops with the bag, and the final state must still
   // go out (path, markers, graph, pose).
   void visualizationTimerCallback(const ros::WallTimerEvent&);
@@ -142,12 +145,11 @@ class MapCorrectorNode {
   std::vector<ros::ServiceServer> services_;
   ros::CallbackQueue tf_queue_, service_queue_;
   ros::Timer tf_timer_;
-  ros::WallTimer visualization_timer_, diagnostics_timer_;
+  ros::WallTimer visualization_timer_, diagnostics_timer_, correction_timer_;
   // The last map->odom sent: the tf timer and, for a correction, the worker send it.
-  std::mutex tf_mutex_;  // guards the three below
-  ros::Time last_tf_stamp_;
+  std::mutex tf_mutex_;  // guards the two below
+  MapToOdomSchedule tf_schedule_;
   toro::Pose3 last_tf_map_T_odom_;
-  bool correction_sent_since_tick_ = false;
   std::unique_ptr<ros::AsyncSpinner> tf_spinner_, service_spinner_;
   diagnostic_updater::Updater diagnostics_;
   std::unique_ptr<dynamic_reconfigure::Server<MapCorrectorConfig>> reconfigure_server_;
