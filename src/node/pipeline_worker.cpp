@@ -85,10 +85,20 @@ void PipelineWorker::process(Item& item) {
 void PipelineWorker::loop() {
   std::deque<Item> batch;
   // Sleep only when no optimisation round is in progress; otherwise take what came in and go on,
-  // so messages and commands wait at most one pass.
-  while (queue_.popAll(batch, !pipeline_->hasScheduledWork())) {
+  // so messages and commands wait at most one pass.  A finish that is due but waits (for its
+  // interval, on a clock that runs on while odometry is quiet) has the worker look again every
+  // kFinishRecheck instead of sleeping until the next message, which may never come.
+  auto take = [&] {
+    if (pipeline_->hasScheduledWork()) return queue_.popAll(batch, false);
+    if (!finish_running_ && pipeline_->finishPending()) return queue_.popAllFor(batch, kFinishRecheck);
+    return queue_.popAll(batch, true);
+  };
+  while (take()) {
     const std::uint64_t before = pipeline_->revision();
     for (Item& item : batch) {
+      if (const auto* m = std::get_if<PipelineMessage>(&item);
+          m && std::holds_alternative<nav_msgs::Odometry::ConstPtr>(*m))
+        last_odometry_fed_ = std::chrono::steady_clock::now();
       // The pipeline reports bad input as counted refusals; an exception here is a bug, and the
       // worker keeps running (and says so) rather than taking the robot's map down with it.
       try {
@@ -98,6 +108,9 @@ void PipelineWorker::loop() {
       }
     }
     batch.clear();
+    if (last_odometry_fed_)
+      pipeline_->setOdometryQuietSec(
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - *last_odometry_fed_).count());
     pipeline_->runScheduledOptimization();
     if (pipeline_->revision() != before) publishSnapshot();
     startFinishIfDue();

@@ -677,7 +677,11 @@ bool MapOptimizer::runScheduledStep(const ros::Time& now) {
   if (full_passes_left_ == 0 && loop_closures_since_full_ > 0 && options_.full_iterations > 0) {
     const bool by_count = options_.full_every_keyframes > 0 &&
                           keyframes_since_full_ >= static_cast<std::size_t>(options_.full_every_keyframes);
-    const bool by_time = options_.full_every_sec > 0 && (now - last_full_stamp_).toSec() >= options_.full_every_sec;
+    // A clock behind the last round's stamp ran ahead then (Pipeline::setOdometryQuietSec while
+    // a bag was paused): time for a round, not a wait until it catches up.
+    const double since_full = (now - last_full_stamp_).toSec();
+    const bool by_time =
+        options_.full_every_sec > 0 && (since_full < 0.0 || since_full >= options_.full_every_sec);
     if (by_count || by_time) {
       loop_closures_since_full_ = 0;
       keyframes_since_full_ = 0;
@@ -851,7 +855,9 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
   if (!options_.background_finish || !finish_due_ || finish_outstanding_ || before_gate_ ||
       optimizer_.graph().numConstraints() == 0 || !finishDetermined())
     return std::nullopt;
-  if (!last_finish_stamp_.isZero() && (now - last_finish_stamp_).toSec() < options_.finish_min_interval_sec)
+  // A clock behind the last finish's stamp ran ahead then (see runScheduledStep): no wait.
+  const double since_finish = (now - last_finish_stamp_).toSec();
+  if (!last_finish_stamp_.isZero() && since_finish >= 0.0 && since_finish < options_.finish_min_interval_sec)
     return std::nullopt;
   // A loop closure held since the last finish does not move the map, but the next finish tests it.
   if (!held_since_finish_ && std::isfinite(finished_chi2_) && std::isfinite(weighted_chi2_) &&

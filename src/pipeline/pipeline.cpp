@@ -148,6 +148,7 @@ void Pipeline::handleOdometry(const nav_msgs::Odometry& msg) {
     }
   }
   newest_odometry_ = stamp;
+  odometry_quiet_sec_ = 0.0;
   last_odometry_ = sample;
   keyframer_.observe(sample);
   odometry_history_.add(stamp, last_odometry_->odom_T_base);
@@ -268,11 +269,16 @@ void Pipeline::releasePending() {
 
 bool Pipeline::hasScheduledWork() const { return !paused_ && map_.hasScheduledWork(); }
 
-bool Pipeline::runScheduledOptimization() { return !paused_ && map_.runScheduledStep(newest_odometry_); }
+ros::Time Pipeline::scheduleClock() const {
+  if (newest_odometry_.isZero() || odometry_quiet_sec_ <= 0.0) return newest_odometry_;
+  return newest_odometry_ + ros::Duration(odometry_quiet_sec_);
+}
+
+bool Pipeline::runScheduledOptimization() { return !paused_ && map_.runScheduledStep(scheduleClock()); }
 
 std::optional<FinishJob> Pipeline::takeFinishJob() {
   if (paused_) return std::nullopt;
-  return map_.takeFinishJob(newest_odometry_);
+  return map_.takeFinishJob(scheduleClock());
 }
 
 bool Pipeline::mergeFinish(const FinishOutcome& outcome) {

@@ -311,3 +311,52 @@ TEST(PipelineWorker, BackgroundFinishIsMergedAndPublished) {
   EXPECT_NEAR(snapshot->chi2, toro::g2oChi2(best), 1e-4 * toro::g2oChi2(best));
   EXPECT_TRUE(errors.texts.empty());
 }
+
+// Loop closures that come after the odometry stopped (a bag ended, a recogniser working off its
+// queue) still get their finish: the schedule's clock runs on while odometry is quiet.  Before,
+// the finish interval was counted in message time only, which had stopped at the last odometry
+// stamp, so the second finish never came and the map stayed where TORO's passes left it.
+TEST(PipelineWorker, AFinishStillComesForLoopClosuresAfterTheOdometryStopped) {
+  const DriftScenario sc = makeDriftingSquare();
+  PipelineOptions o = toro_ros::testing::baseTestOptions();
+  o.optimization.full_iterations = 0;
+  o.optimization.background_finish = true;
+  o.optimization.finish_min_interval_sec = 1.0;
+  Errors errors;
+  PipelineWorker worker(std::make_unique<Pipeline>(o), 100000, errors.sink());
+  const std::size_t last = sc.odometry.size() - 1;
+  for (const nav_msgs::Odometry& m : sc.odometry) worker.push(message(m));
+  worker.push(message(trueLoopClosure(sc, 0, last / 2)));
+  auto waitForMerged = [&](std::uint64_t n, double seconds) {
+    PipelineStatus s;
+    const auto end = std::chrono::steady_clock::now() + duration<double>(seconds);
+    while (std::chrono::steady_clock::now() < end) {
+      s = status(worker);
+      if (s.counters.finishes_merged >= n && !s.finish_running) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return s;
+  };
+  ASSERT_EQ(waitForMerged(1, 10.0).counters.finishes_merged, 1u);
+  // The end of the first lap is the start again, and so is the end: a second loop closure, no
+  // odometry after it.
+  worker.push(message(trueLoopClosure(sc, 0, last)));
+  const auto sent = std::chrono::steady_clock::now();
+  const PipelineStatus s = waitForMerged(2, 10.0);
+  const double waited = duration<double>(std::chrono::steady_clock::now() - sent).count();
+  ASSERT_EQ(s.counters.finishes_merged, 2u)
+      << "no second finish " << waited << " s after the loop closure (applied "
+      << s.counters.loop_closures_applied << ", held " << s.counters.loop_closures_held << ", started "
+      << s.counters.finishes_started << ")";
+  EXPECT_EQ(s.counters.loop_closures_applied, 2u);
+  // Not before the interval (in the wall time the clock ran on by), not much after it.
+  EXPECT_GE(waited, 0.5 * o.optimization.finish_min_interval_sec);
+  const std::shared_ptr<const Snapshot> snapshot = worker.snapshot();
+  worker.stop();
+  toro::PoseGraph best = worker.pipeline().graph();
+  toro::FinishOptions fo;
+  if (!toro::cholmodAvailable()) fo.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
+  toro::LevenbergMarquardt(fo).optimize(best);
+  EXPECT_NEAR(snapshot->chi2, toro::g2oChi2(best), 1e-4 * toro::g2oChi2(best));
+  EXPECT_TRUE(errors.texts.empty());
+}

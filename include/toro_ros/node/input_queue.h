@@ -1,7 +1,9 @@
 // The bounded input queue between the ROS callbacks and the worker thread: a mutex and a condition
-// variable (the worker sleeps until something arrives or it is stopped; nothing polls).
+// variable (the worker sleeps until something arrives or it is stopped; it polls only while a
+// background finish waits for its time, see PipelineWorker::loop).
 #pragma once
 
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
@@ -43,10 +45,13 @@ class InputQueue {
   bool popAll(std::deque<T>& out, bool wait) {
     std::unique_lock<std::mutex> lock(mutex_);
     if (wait) cv_.wait(lock, [&] { return stopped_ || !items_.empty(); });
-    if (stopped_) return false;
-    for (T& item : items_) out.push_back(std::move(item));
-    items_.clear();
-    return true;
+    return takeAll(lock, out);
+  }
+  // As popAll waiting, but for at most `timeout` (then `out` may stay empty).
+  bool popAllFor(std::deque<T>& out, std::chrono::duration<double> timeout) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    cv_.wait_for(lock, timeout, [&] { return stopped_ || !items_.empty(); });
+    return takeAll(lock, out);
   }
 
   void stop() {
@@ -67,6 +72,14 @@ class InputQueue {
   }
 
  private:
+  // Under the lock: moves every item into `out`; false once stopped.
+  bool takeAll(std::unique_lock<std::mutex>&, std::deque<T>& out) {
+    if (stopped_) return false;
+    for (T& item : items_) out.push_back(std::move(item));
+    items_.clear();
+    return true;
+  }
+
   const std::size_t capacity_;
   mutable std::mutex mutex_;  // guards items_, stopped_, dropped_
   std::condition_variable cv_;

@@ -93,6 +93,10 @@ class PipelineWorker {
   std::thread finish_thread_;
   std::atomic<bool> finish_running_{false};
   std::atomic<bool> cancel_finish_{false};
+  // When the newest odometry message was fed (worker thread only): the pipeline's schedule clock
+  // runs on from it while odometry is quiet (Pipeline::setOdometryQuietSec).
+  std::optional<std::chrono::steady_clock::time_point> last_odometry_fed_;
+  static constexpr std::chrono::milliseconds kFinishRecheck{100};
 };
 
 template <class R>

@@ -162,6 +162,7 @@ class MapOptimizer {
   std::optional<FinishJob> takeFinishJob(const ros::Time& now);
   bool mergeFinish(const FinishOutcome& outcome);
   bool finishOutstanding() const { return finish_outstanding_; }
+  bool finishPending() const { return options_.background_finish && finish_due_ && !finish_outstanding_; }
   const std::optional<FinishRecord>& lastFinish() const { return last_finish_; }
   // Why the background finish is off for this map ("" while it is not): odometry steps with free
   // axes (finishDetermined).

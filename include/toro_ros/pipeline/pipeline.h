@@ -152,6 +152,15 @@ class Pipeline {
   // runFinishJob, then give the outcome to mergeFinish, on the pipeline's thread).  Nothing while
   // paused.  mergeFinish returns true if the outcome was taken into the map.
   std::optional<FinishJob> takeFinishJob();
+  // A finish is due but not taken yet (it waits for finish_min_interval_sec, for a pass, or for
+  // the one out to come back): a live caller that would sleep should look again soon.
+  bool finishPending() const { return !paused_ && map_.finishPending(); }
+  // The schedule's clock is message time, the newest odometry stamp.  A live caller reports how
+  // long no odometry has come (wall seconds; every odometry message resets it): the clock runs on
+  // by that much, so a finish due by time still comes once a robot's odometry stops (a bag ended,
+  // a paused driver) while loop closures still arrive.  Offline nobody calls it: replays are
+  // deterministic.
+  void setOdometryQuietSec(double sec) { odometry_quiet_sec_ = sec > 0.0 ? sec : 0.0; }
   bool mergeFinish(const FinishOutcome& outcome);
   // MapOptimizer::optimumJob: the finish to the map's optimum under its robust weights, to measure.
   FinishJob optimumJob() const { return map_.optimumJob(); }
@@ -233,6 +242,9 @@ class Pipeline {
   LoopClosureMatcher matcher_;
   KeyframeIndex keyframes_;
   ros::Time newest_odometry_;
+  double odometry_quiet_sec_ = 0.0;  // see setOdometryQuietSec
+  // newest_odometry_, run on by odometry_quiet_sec_: the clock of the optimisation schedule.
+  ros::Time scheduleClock() const;
   std::optional<OdometrySample> last_odometry_;  // the newest odometry message, keyframe or not
   OdometryHistory odometry_history_;
   toro::NodeId next_id_ = 0;
