@@ -38,7 +38,6 @@ class MapToOdomSchedule {
   void sent(const ros::Time& stamp, double wall_sec, bool correction);
 
   bool deferred() const { return deferred_; }
-  const ros::Time& lastStamp() const { return last_stamp_; }
 
  private:
   ros::Time last_stamp_;
