@@ -13,27 +13,14 @@
 #include <random>
 #include <set>
 
-#include "../core/shared_datasets.h"
-#include "toro_ros/core/graph_io.h"
+#include "dataset_replay.h"
 #include "toro_ros/core/metrics.h"
-#include "toro_ros/offline/graph_to_bag.h"
-#include "toro_ros/offline/offline_runner.h"
-#include "toro_ros/offline/robot_messages.h"
-#include "toro_ros/pipeline/pipeline.h"
 
 namespace toro_ros {
 namespace offline {
 namespace {
 
-const std::string kReplayConfig = std::string(TORO_SOURCE_DIR) + "/config/replay_sample.yaml";
-constexpr int kFinalPasses = 20;  // toro_offline's default final_iterations
-
-struct Replay {
-  toro::PoseGraph graph;  // the dataset (sorted by id) plus the injected loop closures at the end
-  std::size_t clean_constraints = 0;
-  RobotTimeline timeline;
-  GraphToBagOptions options;
-};
+using testing::DatasetReplay;
 
 // Extra loop closures as a wrong place recogniser makes them: between two poses at least
 // `kMinGap` keyframes and kMinDistance metres apart (in the odometry the robot reports), each
@@ -42,13 +29,9 @@ struct Replay {
 constexpr long kMinGap = 50;
 constexpr double kMinDistance = 10.0;
 
-Replay makeReplay(const std::string& file, double outlier_fraction, unsigned seed) {
-  Replay r;
-  r.graph = sortedById(toro::readGraph(toro_test::datasetPath(file)));
-  r.clean_constraints = r.graph.numConstraints();
-  r.options.odometry_rate_hz = 4.0;
-  r.options.keyframe_period_sec = 0.25;
-  const RobotTimeline clean = makeTimeline(r.graph, r.options, file);
+DatasetReplay makeReplay(const std::string& file, double outlier_fraction, unsigned seed) {
+  DatasetReplay r = testing::loadDatasetReplay(file);
+  const RobotTimeline& clean = r.timeline;
   std::size_t loop_closures = 0;
   toro::Matrix6 info = toro::Matrix6::Identity();
   for (std::size_t c = 0; c < r.graph.numConstraints(); ++c)
@@ -68,63 +51,32 @@ Replay makeReplay(const std::string& file, double outlier_fraction, unsigned see
     r.graph.addConstraint(toro::Constraint{r.graph.node(a).id, r.graph.node(b).id, z, info});
     ++k;
   }
-  r.timeline = makeTimeline(r.graph, r.options, file);
-  addCovariances(r.graph, &r.timeline);
+  testing::makeMessages(&r);
   return r;
 }
 
 struct GateRun {
   double chi2 = 0;                  // of the clean constraints at the final poses
-  std::set<std::size_t> rejected;   // constraint indices into Replay::graph
+  std::set<std::size_t> rejected;   // constraint indices into DatasetReplay::graph
   double seconds = 0;
   std::size_t applied = 0;
 };
 
-GateRun run(const Replay& r, double confidence, double variance_factor) {
-  PipelineOptions po = loadNodeOptionsFile(kReplayConfig).pipeline;
+GateRun run(const DatasetReplay& r, double confidence, double variance_factor) {
+  PipelineOptions po = testing::replayOptions();
   po.loop_closure_gate_confidence = confidence;
   po.loop_closure_gate_variance_factor = variance_factor;
   // The gate alone: robust weights (on by default) would hide what the gate does and does not do.
   po.robust.kernel = toro::RobustKernel::kNone;
   Pipeline p(po);
-  std::vector<std::pair<ros::Time, std::size_t>> closures;
-  for (std::size_t c = 0; c < r.graph.numConstraints(); ++c) {
-    if (!r.timeline.is_loop_closure[c]) continue;
-    ros::Time when;
-    loopClosureMessage(r.graph, r.timeline, c, r.options, &when);
-    closures.emplace_back(when, c);
-  }
-  std::stable_sort(closures.begin(), closures.end(), [](auto& a, auto& b) { return a.first < b.first; });
   const auto t0 = std::chrono::steady_clock::now();
-  auto drain = [&] {
-    while (p.runScheduledOptimization() && p.hasScheduledWork()) {
-    }
-  };
-  auto next = closures.begin();
-  ros::Time when;
-  for (long s = 0; s <= r.timeline.sample_of_keyframe.back(); ++s) {
-    const nav_msgs::Odometry odom = odometryAtSample(r.timeline, s, r.options);
-    for (; next != closures.end() && next->first < odom.header.stamp; ++next) {
-      p.handleLoopClosure(loopClosureMessage(r.graph, r.timeline, next->second, r.options, &when));
-      drain();
-    }
-    p.handleOdometry(odom);
-    drain();
-  }
-  for (; next != closures.end(); ++next) {
-    p.handleLoopClosure(loopClosureMessage(r.graph, r.timeline, next->second, r.options, &when));
-    drain();
-  }
-  p.optimize(kFinalPasses, "full");
+  testing::replayThrough(p, r);
   GateRun out;
   out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   out.applied = p.status().counters.loop_closures_applied;
   EXPECT_EQ(p.graph().numNodes(), r.graph.numNodes());
-  // Score against the dataset's constraints only (node i of the pipeline is keyframe i).
-  toro::PoseGraph clean;
-  for (std::size_t i = 0; i < r.graph.numNodes(); ++i) clean.addNode(r.graph.node(i).id, p.graph().node(i).pose);
-  for (std::size_t c = 0; c < r.clean_constraints; ++c) clean.addConstraint(r.graph.constraints()[c]);
-  out.chi2 = toro::g2oChi2(clean);
+  // Score against the dataset's constraints only.
+  out.chi2 = toro::g2oChi2(testing::cleanGraphAtFinalPoses(p, r));
   for (const RejectedLoopClosure& x : p.rejectedLoopClosures()) {
     const toro::NodeId from = r.graph.node(p.graph().indexOf(x.constraint.from)).id;
     const toro::NodeId to = r.graph.node(p.graph().indexOf(x.constraint.to)).id;
@@ -141,8 +93,8 @@ struct Outcome {
 };
 
 Outcome runDataset(const std::string& file, double variance_factor) {
-  const Replay clean = makeReplay(file, 0.0, 1);
-  const Replay dirty = makeReplay(file, 0.05, 1);
+  const DatasetReplay clean = makeReplay(file, 0.0, 1);
+  const DatasetReplay dirty = makeReplay(file, 0.05, 1);
   Outcome o;
   o.clean = run(clean, 0.99, variance_factor);
   o.dirty = run(dirty, 0.99, variance_factor);

@@ -264,14 +264,16 @@ class MapOptimizer {
   // asked beyond the path limit.  span: how many keyframes apart c's ends are.  mapPathVerdict: -1 the
   // evidence contradicts c (beyond mapPathThreshold), +1 it agrees, 0 it cannot tell; `record`
   // feeds the thresholds' statistics (a new arrival).  A path through accepted loop closures
-  // decides when it is clear; otherwise the odometry does.  Partners' support cannot overrule -1:
-  // a wrong claim repeated along a revisit (a recogniser confusing two places) agrees with
-  // itself, not with the odometry or the loop closures accepted between the two places.
+  // decides when it is clear (beyond the declared covariances' quantile, declaredQuantile, as well
+  // as its scaled threshold, or within a tenth of that); otherwise the odometry does.  Partners' support
+  // cannot overrule -1: a wrong claim repeated along a revisit (a recogniser confusing two places) agrees
+  // with itself, not with the odometry or the loop closures accepted between the two places.
   double mapPathChi2(std::size_t c);
   double odometryCycleChi2(std::size_t c);
   std::size_t span(std::size_t c) const;
   double mapPathThreshold(bool through_loop_closure) const;
   int mapPathVerdict(std::size_t c, bool record);
+  double declaredQuantile() const;  // the chi-square's 0.99 quantile at the declared covariances
   // The loop closures near c that agree with it (`record`: its tests feed the threshold's
   // statistic, for a new arrival only), and whether there are enough of them.
   std::vector<std::size_t> consistentPartners(std::size_t c, bool record);

@@ -1,0 +1,83 @@
+// Support for loop closures (robust_hold_until_supported, on by default) on real datasets whose
+// every loop closure is right: kitti_02 and kitti_05 (2D, replayed as 3D messages as a user's bag
+// would carry them) and parking-garage through the Pipeline with default parameters.  Their revisits close
+// long loops after shorter ones: the map's path between a long loop's ends runs through hundreds of
+// keyframes, and its chi2 (kitti_02 8-17, kitti_05 6-10 over ~1,100-1,660 links) lies far above
+// the short paths' scale (their low quantile 0.02-0.14, learnt from the first revisit) though
+// within the declared covariances' 0.99 quantile (16.8), while the odometry over the loop's span
+// agrees with it.  Such a path is in doubt, not a veto: before it was, the last revisit of kitti_02
+// (5 loop closures) and two revisits of kitti_05 (27) were held to the end, the maps 0.24 m and
+// 6.3 m from the optimum (final chi2 3,140 and 1.9e6, replayed as bags by toro_offline).  Replayed
+// here, in memory, kitti_02 ended with none held either way (its messages' timing differs from the
+// bag's); kitti_05 held 27 before (chi2 2.0e6 against the optimum 157.1).  The datasets are not part of the
+// package
+// (../shared/datasets beside a checkout): without them the tests skip.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+
+#include "dataset_replay.h"
+#include "toro_ros/core/metrics.h"
+#include "toro_ros/core/sparse_finisher.h"
+
+namespace toro_ros {
+namespace offline {
+namespace {
+
+struct SupportRun {
+  std::size_t loop_closures = 0;
+  std::size_t held_at_end = 0;  // weighted below 0.5 at the end
+  double chi2 = 0.0;            // the dataset's constraints at the final poses
+  double optimum = 0.0;         // the plain finish from there: the optimum of the same graph
+};
+
+SupportRun replay(const std::string& file) {
+  const testing::DatasetReplay r = testing::loadDatasetReplay(file);
+  Pipeline p(testing::replayOptions());
+  testing::replayThrough(p, r);
+  SupportRun out;
+  out.loop_closures = p.status().counters.loop_closures_applied;
+  out.held_at_end = p.makeSnapshot()->down_weighted_loop_closures;
+  toro::PoseGraph g = testing::cleanGraphAtFinalPoses(p, r);
+  out.chi2 = toro::g2oChi2(g);
+  toro::FinishOptions o;
+  o.max_iterations = 50;
+  out.optimum = toro::LevenbergMarquardt(o).optimize(g).final_chi2;
+  std::printf("%s: %zu loop closures, %zu held at the end; chi2 %.6g, optimum of the same graph %.6g\n",
+              file.c_str(), out.loop_closures, out.held_at_end, out.chi2, out.optimum);
+  return out;
+}
+
+TEST(SupportReplay, Kitti02EveryRightLoopClosureCountsAndTheMapEndsAtTheOptimum) {
+  TORO_REQUIRE_DATASETS();
+  const SupportRun run = replay("2d/kitti_02.g2o");
+  EXPECT_EQ(run.loop_closures, 43u);
+  EXPECT_EQ(run.held_at_end, 0u);
+  EXPECT_LE(run.chi2, 1.01 * run.optimum);  // the final passes are TORO's (within 0.8 % here)
+}
+
+// parking-garage declares covariances about 1e4 times its residuals: the short paths' scale is
+// ~1e-4 of the declared one, and revisits' paths of a few links at 1 to 8 times that threshold
+// (still far within the declared quantile, the odometry over their span agreeing) were vetoed.
+// Before: 32 right loop closures held at the end, chi2 1.3734 against the optimum 1.2387.
+TEST(SupportReplay, ParkingGarageEveryRightLoopClosureCountsAndTheMapEndsAtTheOptimum) {
+  TORO_REQUIRE_DATASETS();
+  const SupportRun run = replay("parking-garage.g2o");
+  EXPECT_EQ(run.loop_closures, 4615u);
+  EXPECT_EQ(run.held_at_end, 0u);
+  EXPECT_LE(run.chi2, (1.0 + 1e-4) * run.optimum);
+}
+
+TEST(SupportReplay, Kitti05LongLoopsCount) {
+  TORO_REQUIRE_DATASETS();
+  const SupportRun run = replay("2d/kitti_05.g2o");
+  EXPECT_EQ(run.loop_closures, 66u);
+  // One loop closure stays held: its path (21 links, chi2 46) is beyond the declared covariances'
+  // quantile too, and its innovation against the finished map beyond the release threshold.
+  EXPECT_LE(run.held_at_end, 1u);
+  EXPECT_LE(run.chi2, 10.0 * run.optimum);
+}
+
+}  // namespace
+}  // namespace offline
+}  // namespace toro_ros
