@@ -108,6 +108,10 @@ constexpr double kMinPathScale = 1e-12;
 // Longer tree paths are not composed (the cost is linear in the links): so long a path is
 // compliant, so it would seldom veto.
 constexpr std::size_t kMaxPathLinks = 5000;
+// The odometry over a loop closure's span is composed once per loop closure (cached), so it may be
+// longer: it is what clears a path in doubt (kitti_02 with default keyframing: its last revisit's
+// spans are ~5,300 keyframes).  About 1 us a keyframe.
+constexpr std::size_t kMaxOdometrySpan = 20000;
 // A held loop closure is released once the map, settled without it, is within this many robust
 // widths of it and the map's own evidence between its ends (mapPathVerdict) agrees with it.  Why
 // more than one width: a right loop closure that no neighbour supports (an isolated revisit) is
@@ -508,7 +512,7 @@ int MapOptimizer::mapPathVerdict(std::size_t c, bool record) {
     if (path <= threshold / kPathLenience) return 1;
   }
   // No path through accepted loop closures, or one in doubt: the odometry over the whole span.
-  const double odometry = span(c) > kMaxPathLinks ? -1.0 : odometryCycleChi2(c);
+  const double odometry = span(c) > kMaxOdometrySpan ? -1.0 : odometryCycleChi2(c);
   if (!(odometry >= 0.0)) return beyond_scaled ? -1 : path >= 0.0 ? 1 : 0;  // nothing to clear it of doubt
   if (record) tested_odometry_paths_.add(odometry);
   return odometry <= mapPathThreshold(false) ? 1 : -1;
