@@ -8,6 +8,7 @@
 
 #include <ros/serialization.h>
 
+#include "toro_ros/core/carried_measurement.h"
 #include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/sparse_finisher.h"
@@ -238,12 +239,23 @@ void Pipeline::applyLoopClosure(const LoopClosure& msg, const MatchResult& match
     return;
   }
   toro::Pose3 measurement = options_.planar ? planarPoseFromMsg(msg.from_T_to) : poseFromMsg(msg.from_T_to);
+  toro::Matrix6 information = info.information;
   if (msg.id_from < 0 || msg.id_to < 0) {
-    // The message measures stamp_from_T_stamp_to; the constraint joins the matched keyframes.
-    measurement = keyframeToStamp(match.from, msg.stamp_from) * measurement *
-                  keyframeToStamp(match.to, msg.stamp_to).inverse();
+    // The message measures stamp_from_T_stamp_to; the constraint joins the matched keyframes, the
+    // odometry between each stamp and its keyframe carrying it there, with that odometry's
+    // uncertainty (a scan's stamp half a keyframe step from its keyframe: decimetres of wheel
+    // odometry beside a millimetre-sure scan match).
+    const toro::Pose3 from_T_stamp = keyframeToStamp(match.from, msg.stamp_from);
+    const toro::Pose3 to_T_stamp = keyframeToStamp(match.to, msg.stamp_to);
+    const toro::Matrix6 from_covariance = keyframeToStampCovariance(match.from, msg.stamp_from, from_T_stamp);
+    const toro::Matrix6 to_covariance = keyframeToStampCovariance(match.to, msg.stamp_to, to_T_stamp);
+    if (!from_covariance.isZero() || !to_covariance.isZero())
+      information = toro::angleToQuaternionUnits(
+          toro::carriedInformation(from_covariance, measurement, toro::quaternionToAngleUnits(information),
+                                   to_T_stamp, to_covariance));
+    measurement = from_T_stamp * measurement * to_T_stamp.inverse();
   }
-  const toro::Constraint c{match.from, match.to, measurement, info.information,
+  const toro::Constraint c{match.from, match.to, measurement, information,
                            toro::ConstraintKind::kLoopClosure};
   const std::string objection = map_.addLoopClosure(c, msg.header.stamp);
   if (!objection.empty()) {

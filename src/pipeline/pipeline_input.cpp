@@ -1,7 +1,9 @@
 // Pipeline: where a loop closure's stamps are on the odometry, and how the covariances of the
 // input were read (counted per rule, said once in the log).
 #include <algorithm>
+#include <cmath>
 
+#include "toro_ros/core/carried_measurement.h"
 #include "toro_ros/pipeline/pipeline.h"
 
 namespace toro_ros {
@@ -31,6 +33,35 @@ toro::Pose3 Pipeline::keyframeToStamp(toro::NodeId keyframe, const ros::Time& st
   // within the tolerance as it is.
   if (k == nullptr || !odom_T_stamp) return toro::Pose3();
   return toro::relativePose(k->odom_T_base, *odom_T_stamp);
+}
+
+toro::Matrix6 Pipeline::keyframeToStampCovariance(toro::NodeId keyframe, const ros::Time& stamp,
+                                                  const toro::Pose3& keyframe_T_stamp) const {
+  const KeyframeRecord* k = keyframes_.find(keyframe);
+  if (k == nullptr || stamp == k->stamp) return toro::Matrix6::Zero();
+  // The odometry step the offset lies on: towards the neighbour on the stamp's side; past the
+  // newest keyframe (or before the first), the step on the other side, the nearest sample of the
+  // odometry's noise there is.
+  const bool after = stamp > k->stamp;
+  const std::optional<toro::NodeId> towards =
+      after ? keyframes_.next(keyframe) : keyframes_.previous(keyframe);
+  const std::optional<toro::NodeId> neighbour = towards ? towards
+                                                : after ? keyframes_.previous(keyframe)
+                                                        : keyframes_.next(keyframe);
+  const KeyframeRecord* n = neighbour ? keyframes_.find(*neighbour) : nullptr;
+  if (n == nullptr || n->stamp == k->stamp) return toro::Matrix6::Zero();
+  const std::optional<toro::Matrix6> step = map_.odometryInformation(keyframe, n->id);
+  if (!step) return toro::Matrix6::Zero();
+  // The odometry's noise grows with the motion (a random walk): the part of the step's covariance
+  // the offset's share of its time is.
+  const double fraction = std::abs((stamp - k->stamp).toSec()) / std::abs((n->stamp - k->stamp).toSec());
+  const toro::Matrix6 covariance =
+      fraction *
+      toro::measuredCovariance(toro::quaternionToAngleUnits(*step), options_.keyframer.unmeasured_variance);
+  if (after) return covariance;
+  // Measured from the stamp to the keyframe: (X exp(e))^-1 = X^-1 exp(-Ad(X) e), X = stamp_T_keyframe.
+  const toro::Matrix6 ad = toro::adjoint(keyframe_T_stamp.inverse());
+  return ad * covariance * ad.transpose();
 }
 
 void Pipeline::countOdometryStep(const InformationResult& information) {

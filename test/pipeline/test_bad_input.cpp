@@ -121,10 +121,17 @@ TEST(BadInput, RepeatedOdometryStampIsRefusedAsOutOfOrder) {
 
 TEST(BadInput, LoopClosureCovariancesAreReadPerAxisAndCounted) {
   // Zero, infinite, asymmetric and negative entries: the constraint is kept (its pose is fine), each
-  // axis read on its own (covariance_rules.h), and what took defaults or a repair is counted.
+  // axis read on its own (covariance_rules.h), and what took defaults or a repair is counted.  The
+  // stamps are keyframes' own, so the constraints hold the information as read (a stamp between
+  // keyframes adds the odometry's uncertainty: test_stamp_attachment).
   Fixture f;
   f.drive(40);
-  std::vector<LoopClosure> bad(4, loopClosure(0, 30));
+  LoopClosure on_keyframes = loopClosure(0, 30);
+  on_keyframes.stamp_from = f.pipeline.keyframes().records().front().stamp;
+  on_keyframes.stamp_to = f.pipeline.keyframes().records().at(5).stamp;
+  on_keyframes.from_T_to = poseToMsg(toro::relativePose(f.pipeline.keyframes().records().front().odom_T_base,
+                                                        f.pipeline.keyframes().records().at(5).odom_T_base));
+  std::vector<LoopClosure> bad(4, on_keyframes);
   bad[0].covariance.fill(0.0);
   bad[1].covariance[0] = kInf;    // x not measured at all
   bad[2].covariance[1] = 1e-4;    // (0,1) without (1,0)

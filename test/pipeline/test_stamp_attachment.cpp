@@ -126,6 +126,50 @@ TEST(StampAttachment, AStampAfterTheNewestKeyframeUsesTheNewestOdometry) {
             0.03);  // the stamp is well past the keyframe
 }
 
+TEST(StampAttachment, AStampBetweenKeyframesAddsTheOdometrysUncertaintyThereNoMore) {
+  // diff_drive_controller's odometry: x, y, yaw at 1e-3 per metre-and-radian moved, z, roll and pitch
+  // flagged unmeasured (1e6).  A loop closure declared to 1 cm, from a keyframe's stamp to a stamp
+  // halfway between two keyframes, carries half a step of that odometry: x and y lose most of
+  // their information; the flagged axes add nothing (z keeps its declared 1 cm).
+  Pipeline p(defaultsWithHistory(60.0));
+  for (int i = 0; i <= 200; ++i) {
+    nav_msgs::Odometry m = odometryMsg(ros::Time(kStart + i / kRate), circleAt(i / kRate));
+    for (int k = 0; k < 6; ++k) m.pose.covariance[7 * k] = k == 0 || k == 1 || k == 5 ? 1e-3 : 1e6;
+    p.handleOdometry(m);
+  }
+  const auto& records = p.keyframes().records();
+  ASSERT_GE(records.size(), 5u);
+  const KeyframeRecord &first = records.front(), &k = records.at(3), &next = records.at(4);
+  const double from = (first.stamp - ros::Time(kStart)).toSec();
+  const double between =
+      0.5 * ((k.stamp - ros::Time(kStart)).toSec() + (next.stamp - ros::Time(kStart)).toSec());
+  const double on_keyframe = (k.stamp - ros::Time(kStart)).toSec();
+  p.handleLoopClosure(trueLoopClosure(from, on_keyframe));
+  p.handleLoopClosure(trueLoopClosure(from, between + 0.01));  // nearer to `next`, before it
+  ASSERT_EQ(p.status().counters.loop_closures_applied, 2u);
+  const auto& constraints = p.graph().constraints();
+  const toro::Matrix6 exact =
+      toro::quaternionToAngleUnits(constraints.at(constraints.size() - 2).information);
+  const toro::Matrix6 carried = toro::quaternionToAngleUnits(constraints.back().information);
+  ASSERT_EQ(constraints.back().to, next.id);
+  // On the keyframe: the declared information (1e4 on x, y, z; 1e5 on the angles).
+  EXPECT_NEAR(exact(0, 0), 1e4, 1e-6);
+  EXPECT_NEAR(exact(2, 2), 1e4, 1e-6);
+  EXPECT_NEAR(exact(5, 5), 1e5, 1e-4);
+  // Between: x and y variance 1e-4 + (the offset's share of the step) x 1e-3 x (metres + radians
+  // of the step), within the few per cent that yaw's lever arm adds.
+  const toro::Pose3 k_T_next = toro::relativePose(k.odom_T_base, next.odom_T_base);
+  const double step = k_T_next.translation().norm() + k_T_next.angle();
+  const double share = (next.stamp.toSec() - (kStart + between + 0.01)) / (next.stamp - k.stamp).toSec();
+  const double expected = 1.0 / (1e-4 + share * 1e-3 * step);
+  for (int axis : {0, 1}) {
+    EXPECT_LT(carried(axis, axis), 1.0 * expected) << axis;
+    EXPECT_GT(carried(axis, axis), 0.9 * expected) << axis;
+  }
+  EXPECT_LT(expected, 0.5e4);        // most of it lost
+  EXPECT_GT(carried(2, 2), 0.99e4);  // z: the odometry's flag adds nothing
+}
+
 TEST(StampAttachment, TheToleranceGuardsStampsBeforeTheFirstKeyframe) {
   Pipeline p(defaultsWithHistory(60.0));
   for (int i = 0; i <= 100; ++i)

@@ -222,6 +222,10 @@ class Pipeline {
   void applyLoopClosure(const LoopClosure& msg, const MatchResult& match);
   // keyframe_T_stamp from the odometry at the stamp (pipeline_input.cpp).
   toro::Pose3 keyframeToStamp(toro::NodeId keyframe, const ros::Time& stamp) const;
+  // The covariance of that offset (right perturbation, angle units), from the odometry step it
+  // lies on; zero at the keyframe's own stamp.
+  toro::Matrix6 keyframeToStampCovariance(toro::NodeId keyframe, const ros::Time& stamp,
+                                          const toro::Pose3& keyframe_T_stamp) const;
   // odom_T_base at `stamp`: the full-rate history where it covers the stamp, else interpolated
   // between the keyframes (or the newest odometry) around it; nullopt outside the trajectory.
   std::optional<toro::Pose3> odometryPoseAt(const ros::Time& stamp) const;
