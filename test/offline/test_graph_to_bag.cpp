@@ -185,8 +185,9 @@ TEST_F(GraphToBagTest, EveryOdometryMessageGrowsTheCarriedCovarianceOfTheOneBefo
     const std::optional<OdometryStep> step = keyframer.accept(sample);
     if (step &&
         (sample.odom_T_base.translation() - poseFromMsg(bag.odometry[i - 1].pose.pose).translation()).norm() >
-            1e-6)
+            1e-6) {
       ASSERT_EQ(axisNames(step->information.axes, AxisReading::kMeasured), "x y z roll pitch yaw") << i;
+    }
   }
   EXPECT_GT(worst, -1e-12);
 }

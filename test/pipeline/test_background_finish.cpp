@@ -260,7 +260,9 @@ TEST(BackgroundFinish, LoopClosuresReleasedWhileAFinishRunsAreCorrectedAfterItsM
         running = p.takeFinishJob();
       }
     }
-    if (running) EXPECT_TRUE(p.mergeFinish(runFinishJob(std::move(*running))));
+    if (running) {
+      EXPECT_TRUE(p.mergeFinish(runFinishJob(std::move(*running))));
+    }
     drain(p);
     EXPECT_EQ(p.counters().loop_closures_released, 5u);
     EXPECT_EQ(p.makeSnapshot()->down_weighted_loop_closures, 0u);
