@@ -559,6 +559,7 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   const std::vector<std::size_t> partners =
       verdict == 0 ? consistentPartners(c, path >= 0) : std::vector<std::size_t>{};
   const bool supported = verdict > 0 || (verdict == 0 && ((partners.size() >= kMinPartners && path >= 0) || agreesWithMap(c)));
+  if (verdict > 0 && tested_pairs_.samples() < kMinPairsToAdaptSupport) accepted_before_scale_.push_back(c);
   if (!supported) {
     optimizer_.setWeightCap(c, 0.0);
     // The next finish tests it (releasePredicted), once enough loop closures count to read the
@@ -576,6 +577,8 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   // Held neighbours it agrees with may have enough support now.
   for (std::size_t j : partners)
     if (optimizer_.weightCap(j) < 1.0 && supportedByPartners(j)) release(j);
+  if (!accepted_before_scale_.empty() && tested_pairs_.samples() >= kMinPairsToAdaptSupport)
+    rejudgeEarlyAccepted();
   if (scale_was_known || tested_pairs_.count() < kMinPairsToAdaptSupport) return;
   // The threshold has just learnt the sender's scale: the loop closures held while it could not
   // judge pairs (the first revisit) are judged again.
@@ -584,6 +587,29 @@ void MapOptimizer::judgeSupport(std::size_t c) {
     if (is_loop_closure_[h] && optimizer_.weightCap(h) < 1.0 && odometryVerdict(h, threshold) == 0 &&
         supportedByPartners(h))
       release(h);
+}
+
+void MapOptimizer::rejudgeEarlyAccepted() {
+  // Accepted by the odometry over a short span, judged with the declared covariances before the
+  // sender's scale was learnt: the same test again at the learnt scale, which every later arrival
+  // gets.  Why: a sender whose covariances are 1e4 too large makes a short chain of its odometry
+  // "agree" with anything (parking-garage.g2o declares 1 m and 1 rad per step: 17 steps agreed with
+  // a wrong first loop closure 63 m off; accepted, it bent the replayed map 14 m and 31 right loop
+  // closures of the closing revisit ended held).  One vetoed now is held like a later arrival (the
+  // next finish tests it against the whole map; partners can release it).
+  const double threshold = supportThreshold();
+  for (std::size_t c : accepted_before_scale_) {
+    if (!(optimizer_.weightCap(c) >= 1.0) || odometryVerdict(c, threshold) >= 0) continue;
+    optimizer_.setWeightCap(c, 0.0);
+    ++counters_->loop_closures_held;
+    if (scaleReadable()) held_since_finish_ = true;
+    // The map it bent is re-settled without it: its path's constraints in the next pass, the
+    // whole map at the next finish.
+    optimizer_.markAffected(c);
+    affected_pending_ = finish_due_ = true;
+    ++revision_;
+  }
+  accepted_before_scale_.clear();
 }
 
 std::vector<std::size_t> MapOptimizer::innovationCandidates(const FinishJob& job) {
@@ -1034,6 +1060,7 @@ void MapOptimizer::clear() {
   last_chi2_ = weighted_chi2_ = kNaN;
   odometry_steps_.clear();
   tested_pairs_.clear();
+  accepted_before_scale_.clear();
   tested_paths_.clear();
   tested_odometry_paths_.clear();
   finish_due_ = false;

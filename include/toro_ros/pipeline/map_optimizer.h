@@ -241,6 +241,7 @@ class MapOptimizer {
   // after a load.
   bool supportEnabled() const { return options_.hold_until_supported && robust_.enabled(); }
   void judgeSupport(std::size_t c);
+  void rejudgeEarlyAccepted();
   bool releaseAgreed();
   void judgeAllSupport();
   void release(std::size_t c);
@@ -305,6 +306,9 @@ class MapOptimizer {
   // The support thresholds' statistics: cycles of loop-closure pairs tested, and mapPathChi2 of
   // arrivals (robust to a majority of wrong ones: a low quantile).
   RecentChi2 tested_pairs_;
+  // Loop closures the odometry supported while the threshold was the declared covariances' (fewer
+  // than kMinPairsToAdaptSupport pairs tested): judged again once it is the learnt one.
+  std::vector<std::size_t> accepted_before_scale_;
   RecentChi2 tested_paths_;
   RecentChi2 tested_odometry_paths_;
   // odometryCycleChi2's cache (NaN: not computed) and the structure it belongs to.
