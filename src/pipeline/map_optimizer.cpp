@@ -385,14 +385,14 @@ bool MapOptimizer::agreesWithSettledMap(std::size_t c) {
   return chi2 <= kReleaseWidths * robust_width_ && mapPathVerdict(c, false) > 0;
 }
 
-std::optional<toro::Matrix6> MapOptimizer::odometryInformation(toro::NodeId a, toro::NodeId b) const {
+std::optional<toro::Matrix6> MapOptimizer::odometryInformation(toro::NodeId a, toro::NodeId b) {
   const toro::PoseGraph& g = optimizer_.graph();
   if (!g.hasNode(a) || !g.hasNode(b)) return std::nullopt;
   const std::size_t u = g.indexOf(a), w = g.indexOf(b);
-  for (std::size_t c : optimizer_.incident(u))
-    if (!is_loop_closure_[c] && (optimizer_.fromIndex(c) == w || optimizer_.toIndex(c) == w))
-      return g.constraints()[c].information;
-  return std::nullopt;
+  if (std::max(u, w) != std::min(u, w) + 1) return std::nullopt;  // not one step apart
+  const std::size_t step = odometrySteps()[std::max(u, w)];
+  if (step == toro::kNoOdometry) return std::nullopt;
+  return g.constraints()[step].information;
 }
 
 const std::vector<std::size_t>& MapOptimizer::odometrySteps() {

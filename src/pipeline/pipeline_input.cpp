@@ -36,7 +36,7 @@ toro::Pose3 Pipeline::keyframeToStamp(toro::NodeId keyframe, const ros::Time& st
 }
 
 toro::Matrix6 Pipeline::keyframeToStampCovariance(toro::NodeId keyframe, const ros::Time& stamp,
-                                                  const toro::Pose3& keyframe_T_stamp) const {
+                                                  const toro::Pose3& keyframe_T_stamp) {
   const KeyframeRecord* k = keyframes_.find(keyframe);
   if (k == nullptr || stamp == k->stamp) return toro::Matrix6::Zero();
   // The odometry step the offset lies on: towards the neighbour on the stamp's side; past the

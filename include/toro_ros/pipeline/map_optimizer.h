@@ -178,8 +178,9 @@ class MapOptimizer {
                         double gate_threshold);
 
   const toro::PoseGraph& graph() const { return optimizer_.graph(); }
-  // The information of the odometry constraint between keyframes a and b, or nullopt.
-  std::optional<toro::Matrix6> odometryInformation(toro::NodeId a, toro::NodeId b) const;
+  // The information of the odometry step between consecutive keyframes a and b (odometrySteps),
+  // or nullopt.
+  std::optional<toro::Matrix6> odometryInformation(toro::NodeId a, toro::NodeId b);
   // Brings `builder` (the owner's snapshot keyframes and edges; records[i] is graph node i) up to
   // date from what the optimiser changed since the last call (SnapshotBuilder::update).
   void updateSnapshot(SnapshotBuilder& builder, const std::vector<KeyframeRecord>& records);

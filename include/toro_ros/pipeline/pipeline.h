@@ -225,7 +225,7 @@ class Pipeline {
   // The covariance of that offset (right perturbation, angle units), from the odometry step it
   // lies on; zero at the keyframe's own stamp.
   toro::Matrix6 keyframeToStampCovariance(toro::NodeId keyframe, const ros::Time& stamp,
-                                          const toro::Pose3& keyframe_T_stamp) const;
+                                          const toro::Pose3& keyframe_T_stamp);
   // odom_T_base at `stamp`: the full-rate history where it covers the stamp, else interpolated
   // between the keyframes (or the newest odometry) around it; nullopt outside the trajectory.
   std::optional<toro::Pose3> odometryPoseAt(const ros::Time& stamp) const;
