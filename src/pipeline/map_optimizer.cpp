@@ -528,6 +528,16 @@ int MapOptimizer::mapPathVerdict(std::size_t c, bool record) {
   return odometry <= mapPathThreshold(false) ? 1 : -1;
 }
 
+void MapOptimizer::hold(std::size_t c) {
+  optimizer_.setWeightCap(c, 0.0);
+  // The next finish tests it (releasePredicted), once enough loop closures count to read the
+  // covariances' scale: before, a finish could release nothing and only disturbs the first
+  // revisit's support (merged between its loop closures, its map re-weighs them on the
+  // uncorrected poses).
+  if (scaleReadable()) held_since_finish_ = true;
+  ++counters_->loop_closures_held;
+}
+
 void MapOptimizer::release(std::size_t c) {
   optimizer_.setWeightCap(c, 1.0);
   optimizer_.admitToTree(c);
@@ -561,13 +571,7 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   const bool supported = verdict > 0 || (verdict == 0 && ((partners.size() >= kMinPartners && path >= 0) || agreesWithMap(c)));
   if (verdict > 0 && tested_pairs_.samples() < kMinPairsToAdaptSupport) accepted_before_scale_.push_back(c);
   if (!supported) {
-    optimizer_.setWeightCap(c, 0.0);
-    // The next finish tests it (releasePredicted), once enough loop closures count to read the
-    // covariances' scale: before, a finish could release nothing and only disturbs the first
-    // revisit's support (merged between its loop closures, its map re-weighs them on the
-    // uncorrected poses).
-    if (scaleReadable()) held_since_finish_ = true;
-    ++counters_->loop_closures_held;
+    hold(c);
     if (counters_->loop_closures_held == kHeldBeforeAdvice && counters_->loop_closures_released == 0 && warn_)
       warn_(std::to_string(kHeldBeforeAdvice) +
             " loop closures held for support and none released yet: each waits until two others near it agree "
@@ -600,9 +604,7 @@ void MapOptimizer::rejudgeEarlyAccepted() {
   const double threshold = supportThreshold();
   for (std::size_t c : accepted_before_scale_) {
     if (!(optimizer_.weightCap(c) >= 1.0) || odometryVerdict(c, threshold) >= 0) continue;
-    optimizer_.setWeightCap(c, 0.0);
-    ++counters_->loop_closures_held;
-    if (scaleReadable()) held_since_finish_ = true;
+    hold(c);
     // The map it bent is re-settled without it: its path's constraints in the next pass, the
     // whole map at the next finish.
     optimizer_.markAffected(c);

@@ -245,6 +245,7 @@ class MapOptimizer {
   void rejudgeEarlyAccepted();
   bool releaseAgreed();
   void judgeAllSupport();
+  void hold(std::size_t c);  // weight cap 0 until a release; counted
   void release(std::size_t c);
   bool agreesWithMap(std::size_t c) const;
   // Held c may count now: agreesWithMap, or within kReleaseWidths of the map and its evidence.
