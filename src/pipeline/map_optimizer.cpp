@@ -559,7 +559,8 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   if (!supportEnabled()) return;
   const bool scale_was_known = tested_pairs_.count() >= kMinPairsToAdaptSupport;
   // Ends a few keyframes apart: the odometry between them decides (a short chain is precise).
-  const int verdict = odometryVerdict(c, supportThreshold());
+  int verdict = odometryVerdict(c, supportThreshold());
+  if (verdict > 0 && toro::constraintChi2(optimizer_.graph(), c) > 100.0 * supportThreshold()) verdict = 0;
   // Every arrival the odometry cannot judge feeds the path statistics, agreeing with the map or not.
   const int path = verdict == 0 ? mapPathVerdict(c, true) : 0;
   // Its pairs feed the pair statistic unless the path evidence contradicts it: the statistic reads
