@@ -242,7 +242,7 @@ class MapOptimizer {
   // after a load.
   bool supportEnabled() const { return options_.hold_until_supported && robust_.enabled(); }
   void judgeSupport(std::size_t c);
-  void rejudgeEarlyAccepted();
+  void rejudgeAccepted();
   bool releaseAgreed();
   void judgeAllSupport();
   void hold(std::size_t c);  // weight cap 0 until a release; counted
@@ -308,9 +308,14 @@ class MapOptimizer {
   // The support thresholds' statistics: cycles of loop-closure pairs tested, and mapPathChi2 of
   // arrivals (robust to a majority of wrong ones: a low quantile).
   RecentChi2 tested_pairs_;
-  // Loop closures the odometry supported while the threshold was the declared covariances' (fewer
-  // than kMinPairsToAdaptSupport pairs tested): judged again once it is the learnt one.
-  std::vector<std::size_t> accepted_before_scale_;
+  // Loop closures the odometry supported, or an innovation test released before the sender's scale
+  // was learnt, still at full weight: judged again whenever the learnt threshold has narrowed
+  // below kRejudgeNarrowing of rejudged_threshold_ (rejudgeAccepted).
+  std::vector<std::size_t> accepted_at_wider_threshold_;
+  double rejudged_threshold_ = std::numeric_limits<double>::infinity();
+  // Per constraint: released by releasePredicted (its innovation agreed), so rejudgeAccepted holds
+  // it only when the odometry refutes it by kOdometryPathLenience, as releasePredicted's veto.
+  std::vector<char> released_by_innovation_;
   RecentChi2 tested_paths_;
   RecentChi2 tested_odometry_paths_;
   // odometryCycleChi2's cache (NaN: not computed) and the structure it belongs to.
