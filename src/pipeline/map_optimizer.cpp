@@ -584,7 +584,7 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   const std::vector<std::size_t> partners =
       verdict == 0 ? consistentPartners(c, path >= 0) : std::vector<std::size_t>{};
   const bool supported = verdict > 0 || (verdict == 0 && ((partners.size() >= kMinPartners && path >= 0) || agreesWithMap(c)));
-  if (verdict > 0) accepted_at_wider_threshold_.push_back(c);
+  if (verdict > 0) accepted_at_wider_threshold_.push_back({c, 1.0});
   if (!supported) {
     hold(c);
     if (counters_->loop_closures_held == kHeldBeforeAdvice && counters_->loop_closures_released == 0 && warn_)
@@ -621,14 +621,13 @@ void MapOptimizer::rejudgeAccepted() {
   // arrival (the next finish tests it against the whole map; partners can release it).
   const double threshold = supportThreshold();
   std::size_t kept = 0;
-  for (std::size_t c : accepted_at_wider_threshold_) {
+  for (const AcceptedLoopClosure& a : accepted_at_wider_threshold_) {
+    const std::size_t c = a.constraint;
     if (!(optimizer_.weightCap(c) >= 1.0)) continue;  // held since: judged again when released
-    const bool predicted = c < released_by_innovation_.size() && released_by_innovation_[c];
-    if (odometryVerdict(c, (predicted ? kOdometryPathLenience : 1.0) * threshold) >= 0) {
-      accepted_at_wider_threshold_[kept++] = c;
+    if (odometryVerdict(c, a.lenience * threshold) >= 0) {
+      accepted_at_wider_threshold_[kept++] = a;
       continue;
     }
-    if (predicted) released_by_innovation_[c] = 0;
     hold(c);
     // The map it bent is re-settled without it: its path's constraints in the next pass, the
     // whole map at the next finish.
@@ -683,7 +682,8 @@ bool MapOptimizer::releasePredicted(const FinishOutcome& outcome) {
   // count, and a few wrong ones among them (accepted before the sender's scale was learnt) raise
   // it far above the sender's scale (parking-garage seed-3 replay with 1000 random wrong ones: a
   // factor of 0.05, 3000 times the pairs' 2e-4, released 29 wrong ones, 73 m off).
-  const double threshold = supportEnabled() ? std::min(innovationThreshold(outcome), supportThreshold())
+  const double support_threshold = supportThreshold();
+  const double threshold = supportEnabled() ? std::min(innovationThreshold(outcome), support_threshold)
                                             : innovationThreshold(outcome);
   bool any = false;
   for (const auto& [c, chi2] : outcome.innovations) {
@@ -692,17 +692,15 @@ bool MapOptimizer::releasePredicted(const FinishOutcome& outcome) {
     // The odometry over a short span refuting it beyond doubt (as it vetoes partners' support)
     // outweighs the prediction: parking-garage's local wrong loop closures, seed 1, were held by the
     // odometry at the learnt scale and released again by finishes.
-    if (supportEnabled() && odometryVerdict(c, kOdometryPathLenience * supportThreshold()) < 0) continue;
+    const int odometry = supportEnabled() ? odometryVerdict(c, kOdometryPathLenience * support_threshold) : 0;
+    if (odometry < 0) continue;
     release(c);
     ++counters_->loop_closures_released_predicted;
     // Released at today's threshold (and before the sender's scale was learnt, by a variance
     // factor the declared covariances' loop closures gave): judged again when it narrows
-    // (rejudgeAccepted), against the odometry refuting it by as much as here.
-    if (span(c) <= static_cast<std::size_t>(options_.support_window_keyframes)) {
-      accepted_at_wider_threshold_.push_back(c);
-      released_by_innovation_.resize(is_loop_closure_.size(), 0);
-      released_by_innovation_[c] = 1;
-    }
+    // (rejudgeAccepted), against the odometry refuting it by as much as here.  One the odometry
+    // cannot judge (span beyond the window) would never be held by it.
+    if (odometry != 0) accepted_at_wider_threshold_.push_back({c, kOdometryPathLenience});
     any = true;
   }
   return any;
@@ -1106,7 +1104,6 @@ void MapOptimizer::clear() {
   odometry_steps_.clear();
   tested_pairs_.clear();
   accepted_at_wider_threshold_.clear();
-  released_by_innovation_.clear();
   rejudged_threshold_ = std::numeric_limits<double>::infinity();
   tested_paths_.clear();
   tested_odometry_paths_.clear();

@@ -308,14 +308,16 @@ class MapOptimizer {
   // The support thresholds' statistics: cycles of loop-closure pairs tested, and mapPathChi2 of
   // arrivals (robust to a majority of wrong ones: a low quantile).
   RecentChi2 tested_pairs_;
-  // Loop closures the odometry supported, or an innovation test released before the sender's scale
-  // was learnt, still at full weight: judged again whenever the learnt threshold has narrowed
-  // below kRejudgeNarrowing of rejudged_threshold_ (rejudgeAccepted).
-  std::vector<std::size_t> accepted_at_wider_threshold_;
+  // Loop closures the odometry supported, or an innovation test released, still at full weight:
+  // judged again whenever the learnt threshold has narrowed below kRejudgeNarrowing of
+  // rejudged_threshold_ (rejudgeAccepted), held when the odometry refutes them by `lenience` times
+  // it (1; kOdometryPathLenience for those whose innovation agreed, as releasePredicted's veto).
+  struct AcceptedLoopClosure {
+    std::size_t constraint;
+    double lenience;
+  };
+  std::vector<AcceptedLoopClosure> accepted_at_wider_threshold_;
   double rejudged_threshold_ = std::numeric_limits<double>::infinity();
-  // Per constraint: released by releasePredicted (its innovation agreed), so rejudgeAccepted holds
-  // it only when the odometry refutes it by kOdometryPathLenience, as releasePredicted's veto.
-  std::vector<char> released_by_innovation_;
   RecentChi2 tested_paths_;
   RecentChi2 tested_odometry_paths_;
   // odometryCycleChi2's cache (NaN: not computed) and the structure it belongs to.
