@@ -31,6 +31,7 @@ constexpr double kMinDistance = 10.0;
 
 DatasetReplay makeReplay(const std::string& file, double outlier_fraction, unsigned seed) {
   DatasetReplay r = testing::loadDatasetReplay(file);
+  r.background_finishes = false;
   const RobotTimeline& clean = r.timeline;
   std::size_t loop_closures = 0;
   toro::Matrix6 info = toro::Matrix6::Identity();

@@ -232,6 +232,46 @@ TEST(BackgroundFinish, ALoneRightLoopClosureIsReleasedByTheFinishedMapAndAWrongO
   EXPECT_EQ(run(toro::Pose3::fromRollPitchYaw(1.5, -1.0, 0, 0, 0, 0.3)), 0u);  // 1.8 m and 17 degrees off
 }
 
+// Laps 2 and 3 revisit lap 1's second side, a loop closure every half metre.  Lap 3's arrive
+// after a lap of drift, their chi2 on the map as it is 60 to 130 times the 0.99 chi-square
+// quantile and the robust width: far enough that
+// neighbours agreeing with each other no longer suffice (a repeated wrong claim agrees with itself
+// too), so they wait for the next background finish, which tests each one by its innovation
+// against the whole map.  Each lies about 2.8 times above the strict threshold (the 0.99 quantile
+// times the map's variance factor: the odometry's systematic drift is not in its declared
+// covariance), and within kCorroboratedInnovationLenience (10) of it with its neighbours
+// agreeing, so the finish releases them and the map is corrected.  With the lenience at 1 they
+// stay held to the end.
+TEST(BackgroundFinish, ARevisitFarFromTheMapWaitsForTheFinishWhichReleasesItsAgreeingLoopClosures) {
+  const DriftScenario sc = makeDriftingSquare(3);
+  PipelineOptions o = finishOptions();
+  o.optimization.hold_until_supported = true;  // the node's default (the test options turn it off)
+  Pipeline p(o);
+  std::size_t lap3_first = 0;
+  std::uint64_t released_at_lap3_first = 0;
+  for (std::size_t i = 0; i < sc.odometry.size(); ++i) {
+    p.handleOdometry(sc.odometry[i]);
+    const std::size_t lap = i / 200, side = (i % 200) / 50;
+    if (lap >= 1 && side == 1 && i % 5 == 0) {
+      p.handleLoopClosure(trueLoopClosure(sc, i % 200, i));
+      if (lap == 2 && lap3_first == 0) {
+        lap3_first = p.graph().numConstraints() - 1;
+        released_at_lap3_first = p.counters().loop_closures_released_predicted;
+      }
+    }
+    drain(p);
+    if (std::optional<FinishJob> job = p.takeFinishJob()) p.mergeFinish(runFinishJob(std::move(*job)));
+    drain(p);
+  }
+  ASSERT_GT(lap3_first, 0u);
+  // Lap 3's first loop closures were released by a finish (by their innovation, their neighbours
+  // agreeing), not by their neighbours at once; every loop closure counts at the end.
+  const PipelineCounters& n = p.counters();
+  EXPECT_GE(n.loop_closures_released_predicted, released_at_lap3_first + 3);
+  EXPECT_EQ(n.loop_closures_held, n.loop_closures_released);
+  EXPECT_EQ(p.makeSnapshot()->down_weighted_loop_closures, 0u);
+}
+
 // A first revisit reported all at once while finishes run beside it (as the node's worker runs
 // them): the loop closures held on arrival make finishes due, and those released while a finish
 // ran (the fifth's support) are corrected after its merge, not set back to the finish's poses.

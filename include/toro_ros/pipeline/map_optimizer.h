@@ -68,7 +68,11 @@ struct OptimizationOptions {
   // closure between distant places meets a long, compliant path, so no test of it alone rejects
   // it, and once applied it bends the map for everyone; a right one of a revisit has neighbours
   // that say the same.  The price: a revisit corrects the map from its third loop closure on (its
-  // fifth the first time, while the threshold learns the sender's covariance scale).
+  // fifth the first time, while the threshold learns the sender's covariance scale).  With the
+  // background finish on, a loop closure far from the map (beyond 10 robust widths and the 0.99
+  // quantile) waits for the next finish instead, which releases it by its innovation against the
+  // whole map (MapOptimizer::leftToInnovation): a map made stiff by many loop closures contradicts
+  // a repeated wrong claim that its long tree path and the odometry cannot.
   bool hold_until_supported = true;
   int support_window_keyframes = 25;
   std::string validate() const;
@@ -282,7 +286,13 @@ class MapOptimizer {
   // The loop closures near c that agree with it (`record`: its tests feed the threshold's
   // statistic, for a new arrival only), and whether there are enough of them.
   std::vector<std::size_t> consistentPartners(std::size_t c, bool record);
+  // supportedByPartners: corroboratedByPartners (enough neighbours agree and the evidence between
+  // its places does not refute it) and not leftToInnovation.  leftToInnovation: c is far from the
+  // map and the finish can test it, so the next finish's innovation test decides instead
+  // (releasePredicted, with kCorroboratedInnovationLenience when corroborated).
   bool supportedByPartners(std::size_t c);
+  bool corroboratedByPartners(std::size_t c);
+  bool leftToInnovation(std::size_t c);
   const std::vector<std::size_t>& odometrySteps();
   // last_chi2_ and weighted_chi2_ from the current poses and weights.
   void updateChi2();
