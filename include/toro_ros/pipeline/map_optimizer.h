@@ -250,7 +250,7 @@ class MapOptimizer {
   bool releaseAgreed();
   void judgeAllSupport();
   void hold(std::size_t c);  // weight cap 0 until a release; counted
-  void release(std::size_t c);
+  void release(std::size_t c, double lenience = 1.0);  // lenience: of its re-judging (rejudgeAccepted)
   bool agreesWithMap(std::size_t c) const;
   // Held c may count now: agreesWithMap, or within kReleaseWidths of the map and its evidence.
   bool agreesWithSettledMap(std::size_t c);
@@ -263,6 +263,10 @@ class MapOptimizer {
   // `threshold`: supportThreshold(), taken once by the caller (it sorts the tested pairs' sample,
   // and the partner search asks for every candidate).
   int odometryVerdict(std::size_t c, double threshold);
+  // odometryVerdict as an arrival's judge: its +1 only once the sender's scale is learnt and when
+  // the test had power (the loop closure's chi2 on the map within kOdometryPowerRatio times the
+  // threshold), else 0 (judged like an arrival the odometry cannot reach); -1 as it is.
+  int shortSpanVerdict(std::size_t c, double threshold);
   // The evidence between c's two places.  mapPathChi2: the chi2 of c's cycle with the tree path
   // through the constraints that count now (odometry and loop closures not held, each by its
   // weight; toro::loopClosureChainChi2), -1 when the path is odometry alone (odometryCycleChi2
