@@ -206,6 +206,9 @@ void MapCorrectorNode::diagnose(diagnostic_updater::DiagnosticStatusWrapper& sta
   status.add("background finishes (started / merged / dropped)",
              std::to_string(s->counters.finishes_started) + " / " + std::to_string(s->counters.finishes_merged) +
                  " / " + std::to_string(s->counters.finishes_dropped));
+  status.add("background finishes from scratch (tried / kept)",
+             std::to_string(s->counters.finishes_from_scratch) + " / " +
+                 std::to_string(s->counters.finishes_from_scratch_kept));
   status.add("background finish running", s->finish_running ? "yes" : "no");
   if (!s->finish_off_reason.empty()) status.add("background finish off", s->finish_off_reason);
   if (s->last_finish) {

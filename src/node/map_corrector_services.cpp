@@ -107,6 +107,8 @@ bool MapCorrectorNode::getStatusService(GetStatus::Request&, GetStatus::Response
   res.finishes_started = r->counters.finishes_started;
   res.finishes_merged = r->counters.finishes_merged;
   res.finishes_dropped = r->counters.finishes_dropped;
+  res.finishes_from_scratch = r->counters.finishes_from_scratch;
+  res.finishes_from_scratch_kept = r->counters.finishes_from_scratch_kept;
   res.finish_running = r->finish_running;
   res.finish_off_reason = r->finish_off_reason;
   if (r->last_finish) {

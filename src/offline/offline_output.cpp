@@ -138,6 +138,8 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
       << ",\n  \"loop_closures_pending\": " << s.status.pending_loop_closures
       << ",\n  \"optimization_passes\": " << k.optimization_passes
       << ",\n  \"finishes\": " << s.run.finishes << ",\n  \"finishes_merged\": " << k.finishes_merged
+      << ",\n  \"finishes_from_scratch\": " << k.finishes_from_scratch
+      << ",\n  \"finishes_from_scratch_kept\": " << k.finishes_from_scratch_kept
       << ",\n  \"odometry_covariance_rule\": " << jsonString(s.status.odometry_covariance_rule)
       << ",\n  \"odometry_steps_default\": " << k.odometry_steps_default
       << ",\n  \"odometry_steps_partly_default\": " << k.odometry_steps_partly_default

@@ -20,6 +20,7 @@
 
 #include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/finish_residuals.h"
+#include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/loop_closure_pairs.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/pipeline/msg_conversion.h"
@@ -264,7 +265,34 @@ FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled
       callback = [&cancelled](const toro::FinishIteration&) {
         if (cancelled()) throw FinishCancelled{};
       };
-    const toro::FinishReport report = toro::LevenbergMarquardt(job.options).optimize(g, callback, candidates);
+    toro::PoseGraph scratch;
+    if (job.from_scratch) scratch = g;  // before the warm start moves its poses
+    toro::FinishReport report = toro::LevenbergMarquardt(job.options).optimize(g, callback, candidates);
+    double seconds = report.seconds;
+    if (job.from_scratch) {
+      // The same graph solved without the current estimate: TORO from the odometry chain (it finds
+      // the basin of the optimum where a warm-started finish polishes whatever basin the map is
+      // in), then the finish; the lower of the two ends is kept.
+      toro::OptimizeOptions start;
+      start.mode = toro::OptimizeMode::kToro;
+      start.initial_guess = toro::InitialGuess::kChainOdometry;
+      toro::OptimizeCallback toro_callback;
+      if (cancelled)
+        toro_callback = [&cancelled](const toro::OptimizeIteration&) {
+          if (cancelled()) throw FinishCancelled{};
+        };
+      seconds += toro::optimizeGraph(scratch, start, toro_callback).seconds;
+      toro::FinishOptions options = job.options;
+      options.max_iterations = std::max(options.max_iterations, toro::FinishOptions{}.max_iterations);
+      toro::FinishReport from_scratch = toro::LevenbergMarquardt(options).optimize(scratch, callback, candidates);
+      seconds += from_scratch.seconds;
+      if (from_scratch.final_chi2 < report.final_chi2) {
+        from_scratch.initial_chi2 = report.initial_chi2;
+        report = std::move(from_scratch);
+        g = std::move(scratch);
+        out.from_scratch_kept = true;
+      }
+    }
     for (std::size_t k = 0, i = 0; k < job.innovation_candidates.size() && i < report.innovation_chi2.size();
          ++k)
       if (job.innovation_candidates[k] < out.constraints)
@@ -275,7 +303,7 @@ FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled
     out.chi2_before = report.initial_chi2;
     out.chi2_after = report.final_chi2;
     out.iterations = report.iterations;
-    out.seconds = report.seconds;
+    out.seconds = seconds;
     out.success = true;
   } catch (const FinishCancelled&) {
     out.error = "cancelled";
@@ -692,7 +720,9 @@ void MapOptimizer::rejudgeAccepted() {
     }
     hold(c);
     // The map it bent is re-settled without it: its path's constraints in the next pass, the
-    // whole map at the next finish.
+    // whole map at the next finish, which also solves from scratch when a finish had settled the
+    // map with it (FinishJob::from_scratch).
+    if (c < settled_constraints_) from_scratch_due_ = true;
     optimizer_.markAffected(c);
     affected_pending_ = finish_due_ = true;
     ++revision_;
@@ -913,7 +943,11 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
     FinishJob job = makeFinishJob(iterations);
     job.loop_closure_weight = loopClosureWeight(job.weights);
     job.innovation_candidates = innovationCandidates(job);
+    job.from_scratch = from_scratch_due_;
+    from_scratch_due_ = false;
+    if (job.from_scratch) ++counters_->finishes_from_scratch;
     outcome = runFinishJob(std::move(job));
+    if (outcome.from_scratch_kept) ++counters_->finishes_from_scratch_kept;
     if (!outcome.success) break;
     seconds += outcome.seconds;
     iterations_run += outcome.iterations;
@@ -1039,6 +1073,9 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
       job.loop_closure_weight >= (1.0 + kInnovationRetestGrowth) * innovation_tested_weight_)
     job.innovation_candidates = innovationCandidates(job);
   held_since_finish_ = false;
+  job.from_scratch = from_scratch_due_;
+  from_scratch_due_ = false;
+  if (job.from_scratch) ++counters_->finishes_from_scratch;
   job.stamp = now;
   finish_due_ = false;
   finish_outstanding_ = true;
@@ -1125,6 +1162,7 @@ bool MapOptimizer::mergeFinish(const FinishOutcome& outcome) {
   record.merged = true;
   last_finish_ = record;
   ++counters_->finishes_merged;
+  if (outcome.from_scratch_kept) ++counters_->finishes_from_scratch_kept;
   ++revision_;
   adaptRobustWidth();
   recheckLoopClosures();
@@ -1179,6 +1217,7 @@ void MapOptimizer::clear() {
   innovation_tested_.clear();
   innovation_tested_weight_ = 0.0;
   held_since_finish_ = false;
+  from_scratch_due_ = false;
   // A finish still out belongs to the old graph: its merge is dropped by the structure.
   ++structure_;
   ++revision_;

@@ -38,6 +38,8 @@ struct SphereRun {
   std::size_t wrong_accepted = 0;                  // wrong loop closures weighted >= 0.5 at the end
   std::size_t right_held = 0;                      // right loop closures weighted < 0.5 at the end
   std::vector<std::vector<Eigen::Vector3d>> maps;  // every keyframe's position after each odometry message
+  std::size_t from_scratch = 0;                    // finishes that also solved from scratch
+  std::size_t from_scratch_kept = 0;               // ... and kept that solution
 };
 
 // The largest distance between a keyframe's positions in two runs' maps after the same odometry
@@ -65,7 +67,9 @@ SphereRun replaySphere(const toro::SyntheticGraph& sphere, const toro::GraphWith
     for (const toro::Node& n : q.graph().nodes()) positions.push_back(n.pose.translation());
     out.maps.push_back(std::move(positions));
   });
-  out.rms = toro::alignedPositionRmse(p.graph(), sphere.graph);  // the sphere's nodes are at the truth
+  out.rms = toro::alignedPositionRmse(p.graph(), sphere.graph);
+  out.from_scratch = p.counters().finishes_from_scratch;
+  out.from_scratch_kept = p.counters().finishes_from_scratch_kept;  // the sphere's nodes are at the truth
   std::set<Pair> wrong, wrong_held;
   for (std::size_t c : input.outliers)
     wrong.insert(ends(input.graph.constraints()[c].from, input.graph.constraints()[c].to));
@@ -102,6 +106,16 @@ toro::SyntheticGraph sphere() {
   return s;
 }
 
+// The sphere with `count` wrong loop closures of `kind` (toro::addOutliers with `seed`) replayed.
+SphereRun replayWithOutliers(const toro::SyntheticGraph& s, toro::OutlierKind kind, std::size_t count,
+                             unsigned seed) {
+  toro::OutlierOptions o;
+  o.kind = kind;
+  o.count = count;
+  o.seed = seed;
+  return replaySphere(s, toro::addOutliers(s.graph, o, &s.graph));
+}
+
 TEST(InnovationSupport, WrongGroupsBetweenPlacesTheMapHoldsStifflyNeverBendIt) {
   const toro::SyntheticGraph s = sphere();
   const SphereRun clean = replaySphere(s, toro::GraphWithOutliers{s.graph, {}});
@@ -109,11 +123,7 @@ TEST(InnovationSupport, WrongGroupsBetweenPlacesTheMapHoldsStifflyNeverBendIt) {
   // five join rings seven or eight apart.  Before, partners' support let one of those in (the path
   // and the odometry over its span "agreeing"): the map bent 21 m, and the ten were still accepted
   // at the end, 2.8 m RMS against the truth.
-  toro::OutlierOptions o;
-  o.kind = toro::OutlierKind::kGrouped;
-  o.count = 50;
-  o.seed = 3;
-  const SphereRun wrong = replaySphere(s, toro::addOutliers(s.graph, o, &s.graph));
+  const SphereRun wrong = replayWithOutliers(s, toro::OutlierKind::kGrouped, 50, 3);
   const double gap = largestGap(clean, wrong);
   std::printf("largest gap between the two runs' maps: %.4g m\n", gap);
   EXPECT_EQ(clean.right_held, 0u);
@@ -121,6 +131,36 @@ TEST(InnovationSupport, WrongGroupsBetweenPlacesTheMapHoldsStifflyNeverBendIt) {
   EXPECT_EQ(wrong.right_held, 0u);
   EXPECT_LT(wrong.rms, 1.05 * clean.rms);
   EXPECT_LT(gap, 0.1);
+}
+
+// Wrong loop closures a few poses apart (a recogniser confusing nearby scans), dense in the first
+// ring: before the sender's scale is learnt the short odometry between their ends cannot refute
+// them, so some are accepted and bend the first ring; once the scale is learnt they are judged
+// again and held (rejudgeAccepted).  The finishes had settled the map with them, and a finish
+// warm-started from that bent map stays in its basin: before, its chi2 stayed at 75 where the
+// graph's optimum was 0.7, the first revisit's right loop closures, measured against it, were held
+// to the end (4 here), and the map ended 2.2 m from the clean run's (0.27 m RMS against the truth,
+// clean 0.087 m).  Now the next finish also solves the map from scratch and keeps the lower end.
+TEST(InnovationSupport, AMapBentByLoopClosuresHeldLaterIsSolvedAgainFromScratch) {
+  const toro::SyntheticGraph s = sphere();
+  const SphereRun clean = replaySphere(s, toro::GraphWithOutliers{s.graph, {}});
+  const SphereRun wrong = replayWithOutliers(s, toro::OutlierKind::kLocal, 150, 2);
+  // The wrong ones bend the map while the first ring is driven (nothing can tell them yet); from
+  // the first revisit on, the two runs must show the same map.
+  SphereRun late_clean, late_wrong;
+  const std::size_t n = std::min(clean.maps.size(), wrong.maps.size());
+  late_clean.maps.assign(clean.maps.begin() + n / 4, clean.maps.begin() + n);
+  late_wrong.maps.assign(wrong.maps.begin() + n / 4, wrong.maps.begin() + n);
+  const double late_gap = largestGap(late_clean, late_wrong);
+  std::printf("largest gap between the two runs' maps after the first quarter: %.4g m; finishes from scratch %zu, "
+              "kept %zu\n",
+              late_gap, wrong.from_scratch, wrong.from_scratch_kept);
+  EXPECT_EQ(clean.from_scratch, 0u);
+  EXPECT_GE(wrong.from_scratch_kept, 1u);
+  EXPECT_EQ(wrong.wrong_accepted, 0u);
+  EXPECT_EQ(wrong.right_held, 0u);
+  EXPECT_LT(wrong.rms, 1.05 * clean.rms);
+  EXPECT_LT(late_gap, 0.5);
 }
 
 }  // namespace

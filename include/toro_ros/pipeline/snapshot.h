@@ -39,6 +39,10 @@ struct PipelineCounters {
   std::uint64_t finishes_started = 0;
   std::uint64_t finishes_merged = 0;
   std::uint64_t finishes_dropped = 0;
+  // Finishes that also solved from scratch (FinishJob::from_scratch), and those whose solution
+  // from scratch ended lower and was merged.
+  std::uint64_t finishes_from_scratch = 0;
+  std::uint64_t finishes_from_scratch_kept = 0;
   std::uint64_t autosaves = 0;            // successful autosaves
   std::uint64_t autosave_failures = 0;    // failed ones (each also logged with the reason)
   // Covariances read axis by axis (covariance_rules.h); none of these is a refusal.  Odometry steps
