@@ -3,7 +3,8 @@
 (bench/run_robust_offline.sh): final position RMSE of each against the clean file's optimum after
 a rigid alignment, and how far the robot ever appeared apart in the two maps (robot_in_map of the
 summaries: map_T_odom after every odometry message applied to that message's pose), also allowing
-the clean run's map up to 1 s of message time earlier or later (latency rather than a bend).
+the clean run's map_T_odom up to 1 s of message time earlier or later, applied to the same odometry
+pose (a correction that came a moment earlier or later is latency rather than a bend).
 
   compare_robust_runs.py OPTIMUM.g2o CLEAN_DIR OUTLIER_DIR      (prints one JSON object)
 """
@@ -30,6 +31,18 @@ def positions(path):
     return np.array([nodes[k] for k in sorted(nodes)])
 
 
+def transforms(samples):
+    """map_T_odom samples [t, x, y, z, qx, qy, qz, qw] as ({t: rotation matrix}, {t: translation})."""
+    rotations, translations = {}, {}
+    for t, x, y, z, qx, qy, qz, qw in samples:
+        rotations[round(t, 6)] = np.array([
+            [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+            [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+            [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)]])
+        translations[round(t, 6)] = np.array([x, y, z])
+    return rotations, translations
+
+
 def aligned_rmse(a, b):
     """RMSE of a against b after the rigid motion that best maps a onto b (Kabsch)."""
     n = min(len(a), len(b))
@@ -53,20 +66,29 @@ def main():
         out[name + "_down_weighted"] = s.get("loop_closures_down_weighted", 0)
         out[name + "_applied"] = s["loop_closures_applied"]
         out[name + "_trace"] = {round(t, 6): np.array([x, y, z]) for t, x, y, z in s["robot_in_map"]}
+        out[name + "_transforms"] = transforms(s.get("map_T_odom", []))  # absent before 2026-12-06
     clean, outliers = out.pop("clean_trace"), out.pop("outliers_trace")
+    clean_transforms, outlier_transforms = out.pop("clean_transforms"), out.pop("outliers_transforms")
     common = sorted(set(clean) & set(outliers))
     gaps = [float(np.linalg.norm(clean[t] - outliers[t])) for t in common]
     out["max_gap_m"] = max(gaps) if gaps else None
-    # The same, but each sample is compared with the nearest of the clean run's positions within
-    # SHIFT_SEC of message time: a right correction that came a moment later in one run (a finish
-    # at another moment) counts as latency here, not as a bend; a wrong loop closure that bends
-    # the map for longer still shows.
+    # The same, but with the clean run's correction (map_T_odom) of any moment within SHIFT_SEC of
+    # message time applied to this run's odometry pose then: a right correction that came a moment
+    # earlier or later in one run (a finish at another moment) counts as latency here, not as a
+    # bend; a wrong loop closure that bends the map for longer still shows.  (Comparing positions
+    # at other moments instead would count the robot's own motion as a gap.)
     times = np.array(common)
-    clean_xyz = np.array([clean[t] for t in common])
+    out_rotations, out_translations = outlier_transforms
+    clean_rotations, clean_translations = clean_transforms
+    clean_r = np.array([clean_rotations.get(t, np.eye(3)) for t in common])
+    clean_t = np.array([clean_translations.get(t, np.zeros(3)) for t in common])
     shifted = []
-    for i, t in enumerate(common):
+    for t in common if len(clean_rotations) == len(clean) and len(out_rotations) == len(outliers) else []:
+        # The odometry pose's position at t, from this run's map position and correction.
+        odom_position = out_rotations[t].T @ (outliers[t] - out_translations[t])
         lo, hi = np.searchsorted(times, t - SHIFT_SEC), np.searchsorted(times, t + SHIFT_SEC, side="right")
-        shifted.append(float(np.min(np.linalg.norm(clean_xyz[lo:hi] - outliers[t], axis=1))))
+        shown = clean_r[lo:hi] @ odom_position + clean_t[lo:hi]
+        shifted.append(float(np.min(np.linalg.norm(shown - outliers[t], axis=1))))
     out["max_gap_within_1s_m"] = max(shifted) if shifted else None
     out["samples"] = len(common)
     print(json.dumps(out))

@@ -35,9 +35,10 @@ cases=(random_100 random_1000 local_1000 grouped_100)
   echo "file node a keyframe).  RMSE: final corrected positions against the clean file's optimum (toro_optimize"
   echo "default), after a rigid alignment.  Largest gap: the largest distance, over every odometry message,"
   echo "between where the clean run and this run showed the robot in the map (map_T_odom then, applied to"
-  echo "the message's pose) — what a tf listener would have seen; in brackets the same with each sample compared"
-  echo "with the clean run's map up to 1 s of message time earlier or later (a right correction that came a"
-  echo "moment later counts as latency there, not as a bend)."
+  echo "the message's pose) — what a tf listener would have seen; in brackets the same with the clean run's"
+  echo "correction (map_T_odom) of any moment up to 1 s of message time earlier or later applied to the same"
+  echo "odometry pose (a right correction that came a moment earlier or later counts as latency there, not as"
+  echo "a bend)."
   echo
   echo "The clean bag is also replayed with \`robust_loop_closures: false\` (plain least squares, the former"
   echo "default): its RMSE is the first column, so robust weights cost nothing on clean input when the two agree."

@@ -183,6 +183,16 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
     out << (i ? "," : "") << (i % 4 ? " " : "\n    ") << "[" << num(r.stamp_sec) << ", " << num(r.position.x()) << ", "
         << num(r.position.y()) << ", " << num(r.position.z()) << "]";
   }
+  // The same samples' map_T_odom: [stamp, x, y, z, qx, qy, qz, qw].
+  out << "\n  ],\n  \"map_T_odom\": [";
+  for (std::size_t i = 0; i < s.run.robot_in_map.size(); ++i) {
+    const OfflineRun::RobotInMap& r = s.run.robot_in_map[i];
+    const toro::Vector3& t = r.map_T_odom.translation();
+    const toro::Quaternion& q = r.map_T_odom.rotation();
+    out << (i ? "," : "") << (i % 2 ? " " : "\n    ") << "[" << num(r.stamp_sec) << ", " << num(t.x()) << ", "
+        << num(t.y()) << ", " << num(t.z()) << ", " << num(q.x()) << ", " << num(q.y()) << ", " << num(q.z()) << ", "
+        << num(q.w()) << "]";
+  }
   out << "\n  ],\n";
   writeLoopClosuresJson(out, p, atOdometryPoses(p));
   writeKeyframesJson(out, p, options);

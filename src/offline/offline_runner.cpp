@@ -138,8 +138,8 @@ void OfflineRunner::traceRobot(const rosbag::MessageInstance& m, OfflineRun* run
   if (!odometry || keyframes.empty()) return;
   // map_T_odom = (corrected newest keyframe) * (its odometry pose)^-1, as Snapshot has it.
   const toro::Pose3 map_T_odom = pipeline_->graph().node(keyframes.size() - 1).pose * keyframes.newest().odom_T_base.inverse();
-  run->robot_in_map.push_back(
-      OfflineRun::RobotInMap{m.getTime().toSec(), map_T_odom * poseFromMsg(odometry->pose.pose).translation()});
+  run->robot_in_map.push_back(OfflineRun::RobotInMap{
+      m.getTime().toSec(), map_T_odom * poseFromMsg(odometry->pose.pose).translation(), map_T_odom});
 }
 
 void OfflineRunner::sampleOptimality(double stamp_sec, double since_loop_closure_sec, OfflineRun* run) const {

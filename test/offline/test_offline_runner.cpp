@@ -13,6 +13,7 @@
 #include <sstream>
 #include <tuple>
 
+#include <nav_msgs/Odometry.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <std_msgs/String.h>
@@ -23,6 +24,7 @@
 #include "toro_ros/offline/offline_output.h"
 #include "toro_ros/offline/offline_runner.h"
 #include "toro_ros/offline/sample_graph.h"
+#include "toro_ros/pipeline/msg_conversion.h"
 #include "toro_ros/pipeline/persistence.h"
 
 namespace toro_ros {
@@ -125,6 +127,29 @@ TEST(OfflineRunner, SampleBeatsOdometryByAWideMarginAgainstTruth) {
   EXPECT_LT(s.score.corrected.mean_rotation_rad, s.score.odometry.mean_rotation_rad / 3)
       << describeSummary(s);
   EXPECT_LT(s.chi2_corrected, s.chi2_odometry / 10) << describeSummary(s);
+}
+
+// The trace compared between runs (bench/compare_robust_runs.py): each sample is the robot where the
+// node would have shown it, its map_T_odom then applied to that odometry message's pose, so another
+// run's correction can be applied to the same odometry.
+TEST(OfflineRunner, EachTraceSampleIsItsCorrectionAppliedToThatOdometryMessage) {
+  const OfflineOptions options = sampleOptions();
+  OfflineRunner runner(options);
+  const OfflineRun run = runner.run();
+  rosbag::Bag bag(options.bag_path, rosbag::bagmode::Read);
+  std::vector<std::pair<double, toro::Vector3>> odometry;
+  for (const rosbag::MessageInstance& m : rosbag::View(bag))
+    if (const auto o = m.instantiate<nav_msgs::Odometry>())
+      odometry.emplace_back(m.getTime().toSec(), poseFromMsg(o->pose.pose).translation());
+  ASSERT_EQ(run.robot_in_map.size(), odometry.size());
+  double largest_correction = 0.0;
+  for (std::size_t i = 0; i < odometry.size(); ++i) {
+    const OfflineRun::RobotInMap& r = run.robot_in_map[i];
+    EXPECT_EQ(r.stamp_sec, odometry[i].first);
+    EXPECT_LT((r.map_T_odom * odometry[i].second - r.position).norm(), 1e-9) << "sample " << i;
+    largest_correction = std::max(largest_correction, r.map_T_odom.translation().norm());
+  }
+  EXPECT_GT(largest_correction, 0.1);  // the sample's odometry drifts: the correction is not the identity
 }
 
 // The optimality samples: the published map against the optimum of the graph so far, plain (every

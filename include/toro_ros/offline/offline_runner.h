@@ -69,10 +69,13 @@ struct OfflineRun {
   OptimizeResult final_result;
   // Where the node would have shown the robot after each odometry message: map_T_odom of the
   // pipeline then (what its tf timer publishes) applied to that message's pose.  Compared between
-  // runs of one bag (bench/run_robust_offline.sh), it shows how far the published map ever moved.
+  // runs of one bag (bench/run_robust_offline.sh), it shows how far the published map ever moved;
+  // map_T_odom itself lets a comparison apply one run's correction at another moment to the same
+  // odometry (a correction that came a moment later is latency, not a bend).
   struct RobotInMap {
     double stamp_sec = 0.0;
     toro::Vector3 position = toro::Vector3::Zero();
+    toro::Pose3 map_T_odom;
   };
   std::vector<RobotInMap> robot_in_map;
   // OfflineOptions::optimality_every_sec: the published map's chi2 and the optimum's at a stamp.
