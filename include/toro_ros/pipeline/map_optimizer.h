@@ -305,6 +305,9 @@ class MapOptimizer {
   // map and the finish can test it, so the next finish's innovation test decides instead
   // (releasePredicted, with kCorroboratedInnovationLenience when corroborated).
   bool supportedByPartners(std::size_t c);
+  // Another loop closure joins c's two places (one end within the support window of each of c's):
+  // a pair that teaches the sender's scale can be tested.
+  bool hasNeighbours(std::size_t c);
   bool corroboratedByPartners(std::size_t c);
   bool leftToInnovation(std::size_t c);
   const std::vector<std::size_t>& odometrySteps();
