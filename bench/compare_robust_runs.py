@@ -43,6 +43,30 @@ def transforms(samples):
     return rotations, translations
 
 
+def latency_tolerant_gap(common, clean_transforms, outliers, outlier_transforms):
+    """The largest gap with the clean run's correction (map_T_odom) of any moment within SHIFT_SEC of
+    message time applied to this run's odometry pose then: a right correction that came a moment
+    earlier or later in one run (a finish at another moment) counts as latency here, not as a bend;
+    a wrong loop closure that bends the map for longer still shows.  (Comparing positions at other
+    moments instead would count the robot's own motion as a gap.)  None when a summary has no
+    map_T_odom (written before 2026-12-06)."""
+    clean_rotations, clean_translations = clean_transforms
+    out_rotations, out_translations = outlier_transforms
+    if not common or any(t not in clean_rotations or t not in out_rotations for t in common):
+        return None
+    times = np.array(common)
+    clean_r = np.array([clean_rotations[t] for t in common])
+    clean_t = np.array([clean_translations[t] for t in common])
+    gap = 0.0
+    for t in common:
+        # The odometry pose's position at t, from this run's map position and correction.
+        odom_position = out_rotations[t].T @ (outliers[t] - out_translations[t])
+        lo, hi = np.searchsorted(times, t - SHIFT_SEC), np.searchsorted(times, t + SHIFT_SEC, side="right")
+        shown = clean_r[lo:hi] @ odom_position + clean_t[lo:hi]
+        gap = max(gap, float(np.min(np.linalg.norm(shown - outliers[t], axis=1))))
+    return gap
+
+
 def aligned_rmse(a, b):
     """RMSE of a against b after the rigid motion that best maps a onto b (Kabsch)."""
     n = min(len(a), len(b))
@@ -72,24 +96,7 @@ def main():
     common = sorted(set(clean) & set(outliers))
     gaps = [float(np.linalg.norm(clean[t] - outliers[t])) for t in common]
     out["max_gap_m"] = max(gaps) if gaps else None
-    # The same, but with the clean run's correction (map_T_odom) of any moment within SHIFT_SEC of
-    # message time applied to this run's odometry pose then: a right correction that came a moment
-    # earlier or later in one run (a finish at another moment) counts as latency here, not as a
-    # bend; a wrong loop closure that bends the map for longer still shows.  (Comparing positions
-    # at other moments instead would count the robot's own motion as a gap.)
-    times = np.array(common)
-    out_rotations, out_translations = outlier_transforms
-    clean_rotations, clean_translations = clean_transforms
-    clean_r = np.array([clean_rotations.get(t, np.eye(3)) for t in common])
-    clean_t = np.array([clean_translations.get(t, np.zeros(3)) for t in common])
-    shifted = []
-    for t in common if len(clean_rotations) == len(clean) and len(out_rotations) == len(outliers) else []:
-        # The odometry pose's position at t, from this run's map position and correction.
-        odom_position = out_rotations[t].T @ (outliers[t] - out_translations[t])
-        lo, hi = np.searchsorted(times, t - SHIFT_SEC), np.searchsorted(times, t + SHIFT_SEC, side="right")
-        shown = clean_r[lo:hi] @ odom_position + clean_t[lo:hi]
-        shifted.append(float(np.min(np.linalg.norm(shown - outliers[t], axis=1))))
-    out["max_gap_within_1s_m"] = max(shifted) if shifted else None
+    out["max_gap_within_1s_m"] = latency_tolerant_gap(common, clean_transforms, outliers, outlier_transforms)
     out["samples"] = len(common)
     print(json.dumps(out))
 

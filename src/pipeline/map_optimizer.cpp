@@ -462,50 +462,46 @@ const std::vector<std::size_t>& MapOptimizer::odometrySteps() {
   return odometry_steps_;
 }
 
-std::vector<std::size_t> MapOptimizer::consistentPartners(std::size_t c, bool record) {
-  const toro::PoseGraph& g = optimizer_.graph();
-  const std::vector<std::size_t>& steps = odometrySteps();
+template <class Visit>
+bool MapOptimizer::visitNeighbours(std::size_t c, Visit&& visit) {
   const std::size_t window = static_cast<std::size_t>(options_.support_window_keyframes);
   const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
-  const double threshold = supportThreshold();
   const auto near = [window](std::size_t x, std::size_t y) { return (x > y ? x - y : y - x) <= window; };
-  std::vector<std::size_t> partners;
   // Every loop closure with one end within the window of a: the other end must be near b.
-  const std::size_t lo = a > window ? a - window : 0, hi = std::min(g.numNodes() - 1, a + window);
-  for (std::size_t u = lo; u <= hi; ++u) {
-    for (std::size_t j : optimizer_.incident(u)) {
-      if (j == c || !is_loop_closure_[j] || odometryVerdict(j, threshold) < 0) continue;
-      const std::size_t other = optimizer_.fromIndex(j) == u ? optimizer_.toIndex(j) : optimizer_.fromIndex(j);
-      if (!near(other, b)) continue;
-      if (std::minmax(u, other) == std::minmax(a, b)) continue;  // the same two poses: no second view
-      if (std::find(partners.begin(), partners.end(), j) != partners.end()) continue;
-      const double chi2 = toro::loopClosurePairChi2(g, steps, c, j, planar_);
-      if (!(chi2 >= 0.0)) continue;
-      if (record) {
-        tested_pairs_.add(chi2);  // the threshold's statistic
-      }
-      // No pair counts before the threshold knows the sender's scale (a few loop closures of the
-      // first revisit wait for it).
-      if (tested_pairs_.count() < kMinPairsToAdaptSupport || !(chi2 <= threshold)) continue;
-      partners.push_back(j);
-    }
-  }
-  return partners;
-}
-
-bool MapOptimizer::hasNeighbours(std::size_t c) {
-  const std::size_t window = static_cast<std::size_t>(options_.support_window_keyframes);
-  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
-  const auto near = [window](std::size_t x, std::size_t y) { return (x > y ? x - y : y - x) <= window; };
   const std::size_t lo = a > window ? a - window : 0, hi = std::min(optimizer_.graph().numNodes() - 1, a + window);
   for (std::size_t u = lo; u <= hi; ++u) {
     for (std::size_t j : optimizer_.incident(u)) {
       if (j == c || !is_loop_closure_[j]) continue;
       const std::size_t other = optimizer_.fromIndex(j) == u ? optimizer_.toIndex(j) : optimizer_.fromIndex(j);
-      if (near(other, b)) return true;
+      if (near(other, b) && visit(j, u, other)) return true;
     }
   }
   return false;
+}
+
+std::vector<std::size_t> MapOptimizer::consistentPartners(std::size_t c, bool record) {
+  const toro::PoseGraph& g = optimizer_.graph();
+  const std::vector<std::size_t>& steps = odometrySteps();
+  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
+  const double threshold = supportThreshold();
+  std::vector<std::size_t> partners;
+  visitNeighbours(c, [&](std::size_t j, std::size_t u, std::size_t other) {
+    if (odometryVerdict(j, threshold) < 0) return false;
+    if (std::minmax(u, other) == std::minmax(a, b)) return false;  // the same two poses: no second view
+    if (std::find(partners.begin(), partners.end(), j) != partners.end()) return false;
+    const double chi2 = toro::loopClosurePairChi2(g, steps, c, j, planar_);
+    if (!(chi2 >= 0.0)) return false;
+    if (record) tested_pairs_.add(chi2);  // the threshold's statistic
+    // No pair counts before the threshold knows the sender's scale (a few loop closures of the
+    // first revisit wait for it).
+    if (tested_pairs_.count() >= kMinPairsToAdaptSupport && chi2 <= threshold) partners.push_back(j);
+    return false;
+  });
+  return partners;
+}
+
+bool MapOptimizer::hasNeighbours(std::size_t c) {
+  return visitNeighbours(c, [](std::size_t, std::size_t, std::size_t) { return true; });
 }
 
 bool MapOptimizer::supportedByPartners(std::size_t c) {
@@ -718,12 +714,11 @@ int MapOptimizer::shortSpanVerdict(std::size_t c, double threshold) {
   // odometry, within kOdometryPowerRatio times its cycle's: MIT's were 4.2 and 9.8 times), so a
   // sender declaring 1 m and 1 rad per step still cannot pass a claim 0.7 m off over four
   // keyframes (test_pipeline_robust, LoopClosureAcceptedAtAWiderThresholdIsJudgedAgainWhenItNarrows).
+  const double chi2 = toro::constraintChi2(optimizer_.graph(), c);
   if (tested_pairs_.count() < kMinPairsToAdaptSupport &&
-      (hasNeighbours(c) ||
-       !(toro::constraintChi2(optimizer_.graph(), c) <= kOdometryPowerRatio * odometryCycleChi2(c))))
+      (hasNeighbours(c) || !(chi2 <= kOdometryPowerRatio * odometryCycleChi2(c))))
     return 0;
-  if (toro::constraintChi2(optimizer_.graph(), c) > kOdometryPowerRatio * threshold) return 0;
-  return 1;
+  return chi2 > kOdometryPowerRatio * threshold ? 0 : 1;
 }
 
 void MapOptimizer::rejudgeAccepted() {
@@ -944,6 +939,12 @@ void MapOptimizer::reweighRound() {
   ++revision_;
 }
 
+void MapOptimizer::takeFromScratch(FinishJob* job) {
+  job->from_scratch = from_scratch_due_;
+  from_scratch_due_ = false;
+  if (job->from_scratch) ++counters_->finishes_from_scratch;
+}
+
 FinishJob MapOptimizer::makeFinishJob(unsigned iterations) const {
   FinishJob job;
   job.structure = structure_;
@@ -970,9 +971,7 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
     FinishJob job = makeFinishJob(iterations);
     job.loop_closure_weight = loopClosureWeight(job.weights);
     job.innovation_candidates = innovationCandidates(job);
-    job.from_scratch = from_scratch_due_;
-    from_scratch_due_ = false;
-    if (job.from_scratch) ++counters_->finishes_from_scratch;
+    takeFromScratch(&job);
     outcome = runFinishJob(std::move(job));
     if (outcome.from_scratch_kept) ++counters_->finishes_from_scratch_kept;
     if (!outcome.success) break;
@@ -1100,9 +1099,7 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
       job.loop_closure_weight >= (1.0 + kInnovationRetestGrowth) * innovation_tested_weight_)
     job.innovation_candidates = innovationCandidates(job);
   held_since_finish_ = false;
-  job.from_scratch = from_scratch_due_;
-  from_scratch_due_ = false;
-  if (job.from_scratch) ++counters_->finishes_from_scratch;
+  takeFromScratch(&job);
   job.stamp = now;
   finish_due_ = false;
   finish_outstanding_ = true;

@@ -67,9 +67,9 @@ SphereRun replaySphere(const toro::SyntheticGraph& sphere, const toro::GraphWith
     for (const toro::Node& n : q.graph().nodes()) positions.push_back(n.pose.translation());
     out.maps.push_back(std::move(positions));
   });
-  out.rms = toro::alignedPositionRmse(p.graph(), sphere.graph);
+  out.rms = toro::alignedPositionRmse(p.graph(), sphere.graph);  // the sphere's nodes are at the truth
   out.from_scratch = p.counters().finishes_from_scratch;
-  out.from_scratch_kept = p.counters().finishes_from_scratch_kept;  // the sphere's nodes are at the truth
+  out.from_scratch_kept = p.counters().finishes_from_scratch_kept;
   std::set<Pair> wrong, wrong_held;
   for (std::size_t c : input.outliers)
     wrong.insert(ends(input.graph.constraints()[c].from, input.graph.constraints()[c].to));

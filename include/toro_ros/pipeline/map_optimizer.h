@@ -224,6 +224,8 @@ class MapOptimizer {
   void reweighRound();
   OptimizeResult finishNow(unsigned iterations);
   FinishJob makeFinishJob(unsigned iterations) const;
+  // Hands the due solve from scratch (from_scratch_due_) to `job`, and counts it.
+  void takeFromScratch(FinishJob* job);
   // Held loop closures for the finish to test by their innovation (FinishJob::innovation_candidates):
   // those tested longest ago first, at most kInnovationTestsPerFinish.  `job.loop_closure_weight`
   // must be set (it is remembered for the next re-test, kInnovationRetestGrowth).
@@ -308,6 +310,11 @@ class MapOptimizer {
   // Another loop closure joins c's two places (one end within the support window of each of c's):
   // a pair that teaches the sender's scale can be tested.
   bool hasNeighbours(std::size_t c);
+  // Calls visit(j, u, other) for each loop closure j other than c with an end u within the support
+  // window of c's from-end and its other end within the window of c's to-end, until visit returns
+  // true; returns whether one did.  (consistentPartners and hasNeighbours.)
+  template <class Visit>
+  bool visitNeighbours(std::size_t c, Visit&& visit);
   bool corroboratedByPartners(std::size_t c);
   bool leftToInnovation(std::size_t c);
   const std::vector<std::size_t>& odometrySteps();
