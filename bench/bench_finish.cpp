@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "bench_timing.h"
+#include "toro_ros/core/blas_kernels.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
@@ -163,9 +164,12 @@ int main(int argc, char** argv) {
     threads = "setSolverThreads(" + std::to_string(solver_threads) + "): OpenBLAS " +
               (set.openblas_set ? "set" : "not loaded") + ", OpenMP " + (set.openmp_set ? "set" : "not loaded");
   }
-  std::printf("runs per case: %d (median); solver threads: %s; OPENBLAS_NUM_THREADS=%s\n\n", runs,
+  // As toro_optimize (OPENBLAS_CORETYPE in the environment keeps the library's or the user's choice).
+  const BlasKernels blas = selectBlasKernels(/*may_switch=*/true);
+  std::printf("runs per case: %d (median); solver threads: %s; OPENBLAS_NUM_THREADS=%s; %s\n\n", runs,
               threads.c_str(),
-              std::getenv("OPENBLAS_NUM_THREADS") ? std::getenv("OPENBLAS_NUM_THREADS") : "(unset)");
+              std::getenv("OPENBLAS_NUM_THREADS") ? std::getenv("OPENBLAS_NUM_THREADS") : "(unset)",
+              blas.note.c_str());
   std::printf(
       "| file | mode | start | TORO group | linear solver | TORO it. | finish it. | wall s | CPU s | "
       "factorise+solve s/it. | read s | final chi2 | rel. diff | time target |\n");

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "bench_timing.h"
+#include "toro_ros/core/blas_kernels.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
@@ -228,8 +229,9 @@ int main(int argc, char** argv) {
   for (const std::string& k : s.kinds)
     if (!outlierKindFromString(k)) return usage();
   setSolverThreads(kDefaultSolverThreads);  // as toro_optimize does (bench/finish_load_results.md)
-  std::printf("kernel %s, width %g, seed %u, runs %d\n\n", robustKernelName(s.robust.kernel), s.robust.width,
-              s.seed, s.runs);
+  const BlasKernels blas = selectBlasKernels(/*may_switch=*/true);  // as toro_optimize does
+  std::printf("kernel %s, width %g, seed %u, runs %d; %s\n\n", robustKernelName(s.robust.kernel),
+              s.robust.width, s.seed, s.runs, blas.note.c_str());
   std::printf(
       "| dataset | outliers | count | RMSE vs clean optimum (m) | right rejected | wrong accepted | wall "
       "(cpu) s | x clean | note |\n");

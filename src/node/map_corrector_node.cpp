@@ -10,6 +10,7 @@
 #include <visualization_msgs/MarkerArray.h>
 
 #include "toro_ros/PoseGraph.h"
+#include "toro_ros/core/blas_kernels.h"
 #include "toro_ros/node/names.h"
 #include "toro_ros/pipeline/persistence.h"
 
@@ -64,6 +65,9 @@ MapCorrectorNode::MapCorrectorNode(ros::NodeHandle nh, ros::NodeHandle private_n
                     << (threads.threads > 0 ? std::to_string(threads.threads) : std::string("of the libraries"))
                     << " (OpenBLAS " << (threads.openblas_set ? "set" : "not loaded or left") << ", OpenMP "
                     << (threads.openmp_set ? "set" : "not loaded or left") << ")");
+    // Reports only: the kernels can be switched only where no other code may be inside the BLAS,
+    // which map_corrector_node's main does before this; in a nodelet manager the note advises.
+    ROS_INFO_STREAM("map corrector: " << toro::selectBlasKernels(/*may_switch=*/false).note);
   }
   auto pipeline = std::make_unique<Pipeline>(
       options_->pipeline, [](const std::string& w) { ROS_WARN_STREAM("map corrector: " << w); },

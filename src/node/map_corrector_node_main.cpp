@@ -4,6 +4,7 @@
 
 #include <ros/ros.h>
 
+#include "toro_ros/core/blas_kernels.h"
 #include "toro_ros/node/map_corrector_node.h"
 
 namespace {
@@ -18,6 +19,9 @@ void requestShutdown(int) { ros::requestShutdown(); }
 int main(int argc, char** argv) {
   ros::init(argc, argv, "map_corrector");
   std::signal(SIGTERM, requestShutdown);
+  // The process is the node's and no thread of it is in the BLAS yet: OpenBLAS's kernels may be
+  // switched here (the node reports the result).
+  toro::selectBlasKernels(/*may_switch=*/true);
   try {
     toro_ros::MapCorrectorNode node(ros::NodeHandle(), ros::NodeHandle("~"));
     ros::spin();

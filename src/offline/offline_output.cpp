@@ -129,6 +129,7 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
       << ",\n  \"bag_duration_sec\": " << num(s.run.bag_duration_sec)
       << ",\n  \"wall_sec\": " << num(s.run.wall_sec)
       << ",\n  \"optimization_sec\": " << num(s.run.optimization_sec)
+      << ",\n  \"blas_kernels\": " << jsonString(s.run.blas_kernels)
       << ",\n  \"keyframes\": " << s.status.keyframes << ",\n  \"constraints\": " << s.status.constraints
       << ",\n  \"odometry_messages\": " << k.odometry_messages
       << ",\n  \"odometry_refused\": " << k.odometry_refused
@@ -136,8 +137,8 @@ void writeSummaryJson(const std::string& path, Pipeline& p, const OfflineSummary
       << ",\n  \"loop_closures_applied\": " << k.loop_closures_applied
       << ",\n  \"loop_closures_refused\": " << k.loop_closures_refused
       << ",\n  \"loop_closures_pending\": " << s.status.pending_loop_closures
-      << ",\n  \"optimization_passes\": " << k.optimization_passes
-      << ",\n  \"finishes\": " << s.run.finishes << ",\n  \"finishes_merged\": " << k.finishes_merged
+      << ",\n  \"optimization_passes\": " << k.optimization_passes << ",\n  \"finishes\": " << s.run.finishes
+      << ",\n  \"finishes_merged\": " << k.finishes_merged
       << ",\n  \"finishes_from_scratch\": " << k.finishes_from_scratch
       << ",\n  \"finishes_from_scratch_kept\": " << k.finishes_from_scratch_kept
       << ",\n  \"odometry_covariance_rule\": " << jsonString(s.status.odometry_covariance_rule)

@@ -12,6 +12,7 @@
 #include <rosbag/view.h>
 #include <nav_msgs/Odometry.h>
 
+#include "toro_ros/core/blas_kernels.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/core/tree_optimizer.h"
@@ -90,6 +91,11 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
   if (!invalid.empty()) throw std::invalid_argument(invalid);
   // As the node does at start (process-wide; the command line's count before the config's).
   toro::setSolverThreads(options.solver_threads.value_or(node_options_.finish_threads));
+  // This process is the runner's (a program or a test): OpenBLAS's kernels may be switched before
+  // the first finish.  Said only when they were not the library's own choice.
+  const toro::BlasKernels blas = toro::selectBlasKernels(/*may_switch=*/true);
+  blas_kernels_ = blas.in_use;
+  if (blas.unusual) std::cerr << blas.note << '\n';
   // As the node: relative load_path / autosave_path are taken from graph_directory.
   const std::string paths = GraphDirectory(node_options_.graph_directory)
                                 .resolveOperatorPaths(&node_options_.load_path,
@@ -246,6 +252,7 @@ OfflineRun OfflineRunner::run() {
     std::cerr << "(" << warnings_.size() - kMaxPrintedWarnings << " more warnings not printed)\n";
   finalPasses(&run);
   run.wall_sec = since(t0);
+  run.blas_kernels = blas_kernels_;
   return run;
 }
 

@@ -20,6 +20,7 @@
 
 #include <unistd.h>
 
+#include "toro_ros/core/blas_kernels.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
@@ -420,6 +421,9 @@ int optimise(CliOptions o) {
 
   const toro::OptimizeOptions options = optimizeOptions(o);
   toro::setSolverThreads(static_cast<int>(o.solver_threads));
+  // Before the first finish, while no other thread can be inside the BLAS.
+  const toro::BlasKernels blas = toro::selectBlasKernels(/*may_switch=*/true);
+  if (!o.quiet && blas.unusual) std::printf("%s\n", blas.note.c_str());
   toro::PoseGraph estimate = graph;
   RunLog log;
   Measures before;

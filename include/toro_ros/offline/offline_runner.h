@@ -65,6 +65,7 @@ struct OfflineRun {
   double wall_sec = 0.0;          // everything from opening the bag to the end of the final passes
   double optimization_sec = 0.0;  // part of it spent in optimisation passes and finishes
   std::size_t finishes = 0;       // background finishes run (inline, see drainSchedule)
+  std::string blas_kernels;       // OpenBLAS's kernels the finishes ran with (toro::selectBlasKernels)
   std::vector<CurvePoint> curve;
   OptimizeResult final_result;
   // Where the node would have shown the robot after each odometry message: map_T_odom of the
@@ -123,6 +124,7 @@ class OfflineRunner {
   NodeOptions node_options_;
   std::unique_ptr<Pipeline> pipeline_;
   std::vector<std::string> warnings_;
+  std::string blas_kernels_;
 };
 
 // Loads node options from a parameter file (or the defaults for an empty path).  Throws
