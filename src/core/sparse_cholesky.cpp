@@ -3,6 +3,7 @@
 #include <dlfcn.h>
 
 #include <atomic>
+#include <limits>
 #include <string>
 
 #include <Eigen/OrderingMethods>
@@ -33,6 +34,7 @@ struct ThreadSetters {
   IntSetter openblas_threads = nullptr;
   IntSetter omp_threads = nullptr;
   IntSetter omp_dynamic = nullptr;
+  IntSetter omp_max_active_levels = nullptr;
 };
 
 const ThreadSetters& threadSetters() {
@@ -41,6 +43,7 @@ const ThreadSetters& threadSetters() {
     s.openblas_threads = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
     s.omp_threads = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "omp_set_num_threads"));
     s.omp_dynamic = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "omp_set_dynamic"));
+    s.omp_max_active_levels = reinterpret_cast<IntSetter>(dlsym(RTLD_DEFAULT, "omp_set_max_active_levels"));
     return s;
   }();
   return setters;
@@ -51,12 +54,19 @@ std::atomic<int> solver_threads{0};
 
 // OpenMP's thread count and dynamic adjustment belong to the calling thread (its data environment),
 // so this runs in the thread that is about to factorise.  Dynamic teams: without them libgomp gives
-// CHOLMOD's num_threads(4) clauses four threads whatever the thread count says.
+// CHOLMOD's num_threads(4) clauses four threads whatever the thread count says.  Dynamic teams alone
+// do not make one thread one: libgomp bounds a team by the CPUs left after the 15-minute load
+// average, so on a quiet 2-core machine CHOLMOD's loops still ran in teams of 2, and every region
+// read the load and the affinity mask (sysinfo, sched_getaffinity: 228,000 calls) and woke the
+// other thread (4.2 million futex calls over the sphere2500 replay; GOMP_parallel 14 % of its
+// profile).  With one thread no region may be active (max-active-levels 0): each runs inline.
 bool applyOpenMp(int threads) {
   const ThreadSetters& s = threadSetters();
   if (threads <= 0 || !s.omp_threads || !s.omp_dynamic) return false;
   s.omp_threads(threads);
   s.omp_dynamic(1);
+  // INT_MAX: the runtime's own limit (it clamps to the levels it supports).
+  if (s.omp_max_active_levels) s.omp_max_active_levels(threads == 1 ? 0 : std::numeric_limits<int>::max());
   return true;
 }
 
