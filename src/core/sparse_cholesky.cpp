@@ -143,6 +143,15 @@ class QuietCholmod : public EigenStyleCholesky<Solver> {
     // AMD on the scalar pattern, which took most of the analysis (bench/background_finish_results.md).
     this->solver_.cholmod().nmethods = 1;
     this->solver_.cholmod().method[0].ordering = CHOLMOD_NATURAL;
+    // Supernode amalgamation twice CHOLMOD's defaults (merged whatever the zeros up to 4 columns -> 8,
+    // with < 80 % zeros up to 16 -> 32, with < 10 % up to 48 -> 96): its defaults are set for scalar
+    // matrices, ours come in 6x6
+    // (3x3) blocks, so a default supernode is one or two poses, too small for the dense kernels to
+    // pay.  Measured (bench/background_finish_results.md, session 31): sphere2500 replay 13.40 ->
+    // 12.71 s (median of 4 interleaved), finishes of manhattan 0.050 -> 0.039 s and parking-garage
+    // 0.045 -> 0.035 s, sphere2500 / kitti_00 / city10000 unchanged; 4x was slower than 2x.
+    cholmod_common& common = this->solver_.cholmod();
+    for (std::size_t& n : common.nrelax) n *= 2;
     const int threads = solverThreads();
     applyOpenMp(threads);
 #if CHOLMOD_MAIN_VERSION >= 5
