@@ -129,8 +129,15 @@ class EigenStyleCholesky : public SparseCholesky {
 };
 
 #ifdef TORO_HAVE_CHOLMOD
+// Eigen's CHOLMOD wrappers with their factor reachable (Eigen keeps it protected).
+template <class Wrapper>
+class WithFactor : public Wrapper {
+ public:
+  cholmod_factor* factor() const { return this->m_cholmodFactor; }
+};
+
 template <class Solver>
-class QuietCholmod : public EigenStyleCholesky<Solver> {
+class QuietCholmod : public EigenStyleCholesky<WithFactor<Solver>> {
  public:
   // CHOLMOD prints warnings (e.g. "not positive definite") by default; the library must not
   // print, and a failed factorisation is reported through factorize()'s result instead.
@@ -158,6 +165,29 @@ class QuietCholmod : public EigenStyleCholesky<Solver> {
     // CHOLMOD 5 sizes its OpenMP loops itself (Common.nthreads_max; 0: its own default).
     if (threads > 0) this->solver_.cholmod().nthreads_max = threads;
 #endif
+  }
+
+  bool forwardSolveColumns(const Eigen::MatrixXd& rhs, Eigen::MatrixXd* y) override {
+    cholmod_factor* l = this->solver_.factor();
+    if (!l || !l->is_ll || this->solver_.info() != Eigen::Success) return false;
+    cholmod_common& common = this->solver_.cholmod();
+    cholmod_dense b;  // a view: CHOLMOD reads it only
+    b.nrow = static_cast<std::size_t>(rhs.rows());
+    b.ncol = static_cast<std::size_t>(rhs.cols());
+    b.nzmax = b.nrow * b.ncol;
+    b.d = b.nrow;
+    b.x = const_cast<double*>(rhs.data());
+    b.z = nullptr;
+    b.xtype = CHOLMOD_REAL;
+    b.dtype = CHOLMOD_DOUBLE;
+    cholmod_dense* permuted = cholmod_solve(CHOLMOD_P, l, &b, &common);
+    if (!permuted) return false;
+    cholmod_dense* forward = cholmod_solve(CHOLMOD_L, l, permuted, &common);
+    cholmod_free_dense(&permuted, &common);
+    if (!forward) return false;
+    *y = Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(forward->x), rhs.rows(), rhs.cols());
+    cholmod_free_dense(&forward, &common);
+    return true;
   }
 };
 #endif

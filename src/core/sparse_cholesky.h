@@ -26,6 +26,11 @@ class SparseCholesky {
   virtual Eigen::VectorXd solve(const Eigen::VectorXd& rhs) = 0;
   // Several right-hand sides at once (CHOLMOD's supernodal solve then runs on BLAS-3 blocks).
   virtual Eigen::MatrixXd solveColumns(const Eigen::MatrixXd& rhs) = 0;
+  // Y = L^-1 P rhs, the forward half of a solve with the factorisation P A P^T = L L^T, so that
+  // Y^T Y = rhs^T A^-1 rhs: the quadratic forms of A^-1 for half the triangular work of
+  // solveColumns, symmetric by construction.  False when this factorisation is not L L^T (the
+  // caller then uses solveColumns).
+  virtual bool forwardSolveColumns(const Eigen::MatrixXd& /*rhs*/, Eigen::MatrixXd* /*y*/) { return false; }
 };
 
 // A fill-reducing order of a symmetric pattern (both triangles given): position[i] is where row

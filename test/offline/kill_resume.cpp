@@ -146,7 +146,11 @@ class Player {
   }
   bool connected() const { return odom_.getNumSubscribers() > 0 && lc_.getNumSubscribers() > 0; }
   // Publishes [from, to) in chunks, each time waiting until the node has taken in all odometry so
-  // far (its subscriber queues hold 100 messages: a chunk never overflows them).
+  // far (its subscriber queues hold 100 messages: a chunk never overflows them) and its background
+  // finish, if one runs, has ended: the uninterrupted run it is compared with (toro_offline) runs
+  // each finish inline, and on a loaded machine a finish that lagged several chunks behind let
+  // the live node weigh loop closures on a different map (the shared keyframes 0.63 m apart twice
+  // in one CI run, while other jobs loaded the machine; 0.13 m otherwise).
   bool play(const std::vector<BagMessage>& msgs, std::size_t from, std::size_t to, std::uint64_t odometry_before) {
     std::uint64_t odometry = odometry_before;
     for (std::size_t i = from; i < to; ++i) {
@@ -163,7 +167,7 @@ class Player {
         const bool caught_up = waitWall(
             [&] {
               const auto s = status();
-              return s && s->odometry_messages == odometry && s->queue_length == 0;
+              return s && s->odometry_messages == odometry && s->queue_length == 0 && !s->finish_running;
             },
             30.0);
         if (!caught_up) return false;
