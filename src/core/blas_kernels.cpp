@@ -45,7 +45,8 @@ std::string coreName(const OpenBlasEntryPoints& e) {
 struct ProcessRecord {
   bool done = false;
   std::string loaded;
-  std::string switched_to;
+  std::string better;     // betterBlasCore for this CPU, whatever OPENBLAS_CORETYPE says
+  bool switched = false;  // the first call made OpenBLAS select `better`
 };
 
 }  // namespace
@@ -86,42 +87,44 @@ BlasKernels selectBlasKernels(bool may_switch) {
   if (!record.done) {
     record.done = true;
     record.loaded = coreName(blas);
+    const CpuVectorFeatures cpu = cpuVectorFeatures();
+    record.better = betterBlasCore(record.loaded, cpu, nullptr);
     const char* user = std::getenv("OPENBLAS_CORETYPE");
-    const std::string better = betterBlasCore(record.loaded, cpuVectorFeatures(), user);
-    if (!better.empty() && may_switch && blas.dynamic_quit && blas.dynamic_init) {
-      // Its own selection again, as at load with the variable set; the variable is put back so
-      // that child processes make their own choice.
-      const std::string previous = user ? user : "";
-      ::setenv("OPENBLAS_CORETYPE", better.c_str(), 1);
+    const bool wanted = !betterBlasCore(record.loaded, cpu, user).empty();
+    if (wanted && may_switch && blas.dynamic_quit && blas.dynamic_init) {
+      // Its own selection again, as at load with the variable set; the variable is put back (unset,
+      // or set and empty) so that child processes make their own choice.
+      const bool was_set = user != nullptr;
+      ::setenv("OPENBLAS_CORETYPE", record.better.c_str(), 1);
       blas.dynamic_quit();
       blas.dynamic_init();
-      if (user) {
-        ::setenv("OPENBLAS_CORETYPE", previous.c_str(), 1);
+      if (was_set) {
+        ::setenv("OPENBLAS_CORETYPE", "", 1);
       } else {
         ::unsetenv("OPENBLAS_CORETYPE");
       }
-      record.switched_to = coreName(blas);
+      record.switched = true;
     }
   }
   out.loaded = record.loaded;
   out.in_use = coreName(blas);
-  const std::string better = betterBlasCore(out.loaded, cpuVectorFeatures(), nullptr);
-  if (!record.switched_to.empty()) {
+  const char* user = std::getenv("OPENBLAS_CORETYPE");
+  if (record.switched) {
     out.unusual = true;
     out.note = "BLAS kernels: OpenBLAS " + out.in_use + " (it loaded its generic " + out.loaded +
                " kernels on this CPU, which it does not know; selected for the CPU's " +
-               (better == "SkylakeX" ? "AVX-512" : "AVX2") + ")";
-  } else if (std::getenv("OPENBLAS_CORETYPE")) {
-    out.note = "BLAS kernels: OpenBLAS " + out.in_use +
-               " (OPENBLAS_CORETYPE=" + std::getenv("OPENBLAS_CORETYPE") + ")";
-  } else if (!better.empty()) {
+               (record.better == "SkylakeX" ? "AVX-512" : "AVX2") + ")";
+  } else if (user && *user) {
+    out.note = "BLAS kernels: OpenBLAS " + out.in_use + " (OPENBLAS_CORETYPE=" + user + ")";
+  } else if (!record.better.empty()) {
     out.unusual = true;
     out.note = "BLAS kernels: OpenBLAS " + out.in_use +
                ", its generic kernels on this CPU, which it does not know; the finish runs ~1.3x "
                "faster with OPENBLAS_CORETYPE=" +
-               better + " in the environment" +
-               (may_switch ? std::string(" (this OpenBLAS cannot select kernels at run time)")
-                           : std::string(" (not switched inside a shared process: a nodelet)"));
+               record.better + " in the environment" +
+               (blas.dynamic_quit && blas.dynamic_init
+                    ? std::string(" (not switched inside a shared process: a nodelet)")
+                    : std::string(" (this OpenBLAS cannot select kernels at run time)"));
   } else {
     out.note = "BLAS kernels: OpenBLAS " + out.in_use + " (its own choice for this CPU)";
   }

@@ -171,15 +171,9 @@ class QuietCholmod : public EigenStyleCholesky<WithFactor<Solver>> {
     cholmod_factor* l = this->solver_.factor();
     if (!l || !l->is_ll || this->solver_.info() != Eigen::Success) return false;
     cholmod_common& common = this->solver_.cholmod();
-    cholmod_dense b;  // a view: CHOLMOD reads it only
-    b.nrow = static_cast<std::size_t>(rhs.rows());
-    b.ncol = static_cast<std::size_t>(rhs.cols());
-    b.nzmax = b.nrow * b.ncol;
-    b.d = b.nrow;
-    b.x = const_cast<double*>(rhs.data());
-    b.z = nullptr;
-    b.xtype = CHOLMOD_REAL;
-    b.dtype = CHOLMOD_DOUBLE;
+    // A view, as Eigen's own solve makes one: CHOLMOD only reads it.
+    Eigen::Ref<const Eigen::MatrixXd> rhs_ref(rhs);
+    cholmod_dense b = Eigen::viewAsCholmod(rhs_ref);
     cholmod_dense* permuted = cholmod_solve(CHOLMOD_P, l, &b, &common);
     if (!permuted) return false;
     cholmod_dense* forward = cholmod_solve(CHOLMOD_L, l, permuted, &common);

@@ -94,7 +94,6 @@ OfflineRunner::OfflineRunner(const OfflineOptions& options)
   // This process is the runner's (a program or a test): OpenBLAS's kernels may be switched before
   // the first finish.  Said only when they were not the library's own choice.
   const toro::BlasKernels blas = toro::selectBlasKernels(/*may_switch=*/true);
-  blas_kernels_ = blas.in_use;
   if (blas.unusual) std::cerr << blas.note << '\n';
   // As the node: relative load_path / autosave_path are taken from graph_directory.
   const std::string paths = GraphDirectory(node_options_.graph_directory)
@@ -252,7 +251,7 @@ OfflineRun OfflineRunner::run() {
     std::cerr << "(" << warnings_.size() - kMaxPrintedWarnings << " more warnings not printed)\n";
   finalPasses(&run);
   run.wall_sec = since(t0);
-  run.blas_kernels = blas_kernels_;
+  run.blas_kernels = toro::selectBlasKernels(/*may_switch=*/false).in_use;  // what the finishes ran with
   return run;
 }
 

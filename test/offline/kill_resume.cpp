@@ -151,8 +151,8 @@ class Player {
   // runs each finish inline where it is due.  With chunks of 40 the live node's finishes merged at
   // messages that depended on timing, and the shared keyframes ended 0.63 m apart instead of
   // 0.13-0.14 m in 2 of 3 fresh-clone CI runs of session 31 (3 of the 9 runs of this test in them;
-  // never in isolated runs); one message
-  // per chunk makes the live run follow the offline one (0.1435 m in every run since).
+  // never in isolated runs); one message per chunk makes the live run follow the offline one
+  // (0.1435 m in every run since).
   bool play(const std::vector<BagMessage>& msgs, std::size_t from, std::size_t to, std::uint64_t odometry_before) {
     std::uint64_t odometry = odometry_before;
     for (std::size_t i = from; i < to; ++i) {

@@ -124,7 +124,6 @@ class OfflineRunner {
   NodeOptions node_options_;
   std::unique_ptr<Pipeline> pipeline_;
   std::vector<std::string> warnings_;
-  std::string blas_kernels_;
 };
 
 // Loads node options from a parameter file (or the defaults for an empty path).  Throws
