@@ -18,7 +18,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <exception>
+#include <filesystem>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -187,9 +190,7 @@ int usage() {
   return 2;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+int run(int argc, char** argv) {
   Settings s;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -207,7 +208,12 @@ int main(int argc, char** argv) {
       s.kinds = split(v);
     else if (a == "--counts" || a == "--grouped-counts") {
       std::vector<std::size_t> c;
-      for (const std::string& x : split(v)) c.push_back(std::stoul(x));
+      for (const std::string& x : split(v)) {
+        char* end = nullptr;
+        const unsigned long n = std::strtoul(x.c_str(), &end, 10);
+        if (x.empty() || *end != '\0') throw std::invalid_argument(a + ": '" + x + "' is not a count");
+        c.push_back(n);
+      }
       (a == "--counts" ? s.counts : s.grouped_counts) = c;
     } else if (a == "--kernel") {
       const auto k = robustKernelFromString(v);
@@ -228,6 +234,8 @@ int main(int argc, char** argv) {
   }
   for (const std::string& k : s.kinds)
     if (!outlierKindFromString(k)) return usage();
+  // The graphs are the point of --dump-only: make the directory rather than fail after the first solve.
+  if (!s.dump.empty()) std::filesystem::create_directories(s.dump);
   setSolverThreads(kDefaultSolverThreads);  // as toro_optimize does (bench/finish_load_results.md)
   const BlasKernels blas = selectBlasKernels(/*may_switch=*/true);  // as toro_optimize does
   std::printf("kernel %s, width %g, seed %u, runs %d; %s\n\n", robustKernelName(s.robust.kernel),
@@ -241,4 +249,17 @@ int main(int argc, char** argv) {
     runDataset(s, d);
   }
   return 0;
+}
+
+}  // namespace
+
+// Bad arguments (a count that is no number) and files that cannot be read or written end with the
+// reason, not with an uncaught exception.
+int main(int argc, char** argv) {
+  try {
+    return run(argc, argv);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bench_robust: %s\n", e.what());
+    return 1;
+  }
 }
