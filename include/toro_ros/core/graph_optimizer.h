@@ -129,6 +129,9 @@ struct OptimizeReport {
   std::size_t odometry_consistent_loop_closures = 0;  // of the robust second start
   std::size_t subset_finish_iterations = 0;  // the second start's plain finish on its subgraph
   std::size_t candidate_finish_iterations = 0;  // the finish of the start that was not kept
+  // Loop closures the dead-reckoning start left out of its first finish (robust_optimizer.cpp,
+  // heldFromDeadReckoning); 0 when that start did not run.
+  std::size_t dead_reckoning_held = 0;
   std::vector<OptimizeIteration> history;  // kStart line first
 };
 
