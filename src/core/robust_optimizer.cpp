@@ -187,6 +187,13 @@ class RobustRun {
     finish(without, options_.finish.max_iterations, width);
     copyPoses(without.graph, c.graph);
     finish(c, options_.finish.max_iterations, settledWidth(without, options_.robust.width));
+    // One report for both: the iterations and time of the finish without them count too (its
+    // chi2 at the start is over fewer constraints, so the whole finish's is kept).
+    c.finish.iterations += without.finish.iterations;
+    c.finish.seconds += without.finish.seconds;
+    c.finish.factorization_seconds += without.finish.factorization_seconds;
+    c.finish.history.insert(c.finish.history.begin(), without.finish.history.begin(),
+                            without.finish.history.end());
   }
 
   void finish(Candidate& c, std::size_t max_iterations, double width = 0.0) {
