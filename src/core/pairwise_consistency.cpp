@@ -38,9 +38,12 @@ PairwiseConsistency pairwiseConsistency(const PoseGraph& graph) {
       short_span[c] = loopClosureOdometryChi2(graph, steps, c, planar);
       continue;
     }
-    const std::size_t lo = a > kPairWindowNodes ? a - kPairWindowNodes : 0;
-    const std::size_t hi = std::min(n - 1, a + kPairWindowNodes);
-    for (std::size_t u = lo; u <= hi && cycles[c].size() < kMaxPairsPerLoopClosure; ++u) {
+    // Nearest first: the shortest odometry between the near ends, the cheapest and most precise
+    // cycles.
+    for (std::size_t d = 0; d <= 2 * kPairWindowNodes && cycles[c].size() < kMaxPairsPerLoopClosure; ++d) {
+      const std::size_t offset = (d + 1) / 2;
+      if (d % 2 == 1 ? offset > a : a + offset >= n) continue;
+      const std::size_t u = d % 2 == 1 ? a - offset : a + offset;
       for (std::size_t j : incident[u]) {
         if (j <= c || cycles[c].size() >= kMaxPairsPerLoopClosure) continue;
         const std::size_t other = from[j] == u ? to[j] : from[j];

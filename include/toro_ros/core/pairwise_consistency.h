@@ -42,8 +42,10 @@ constexpr std::size_t kPairWindowNodes = 25;
 // Agreement of this many neighbours makes a loop closure agreed (two wrong ones agree by chance
 // now and then; a right one of a revisit has several neighbours).
 constexpr std::size_t kMinAgreeingPartners = 2;
-// Pairs tested per loop closure at most (each costs a walk along the odometry between the near
-// ends; a revisit's first neighbours tell).
+// Pairs tested per loop closure at most, nearest neighbours first (each costs a walk along the
+// odometry between the near ends; the nearest give the shortest, most precise cycles).  Searched
+// in node order instead, parking-garage's 4,700 loop closures took 0.55 s (42,000 pairs); nearest
+// first, 0.12 s (36,000).
 constexpr std::size_t kMaxPairsPerLoopClosure = 16;
 // Cycles needed before the scale is read and any verdict is given.
 constexpr std::size_t kMinPairsForScale = 10;
