@@ -99,7 +99,9 @@ struct OptimizeIteration {
 };
 
 // Which start the robust TORO phase kept (OptimizeOptions::robust).
-enum class RobustStart { kNone, kDeadReckoning, kOdometryConsistent };
+// kCorroborated: the odometry-consistent loop closures without those pairs of nearby loop closures
+// contradict or do not corroborate (run only when the dead-reckoning start held some).
+enum class RobustStart { kNone, kDeadReckoning, kOdometryConsistent, kCorroborated };
 
 // Loop closures whose innovation chi2 against the odometry is below the chi-square quantile at
 // this confidence make the robust second start's map (OptimizeOptions::robust).
@@ -128,7 +130,7 @@ struct OptimizeReport {
   std::size_t width_rounds = 0;  // finishes run to refine with an adapted width
   std::size_t odometry_consistent_loop_closures = 0;  // of the robust second start
   std::size_t subset_finish_iterations = 0;  // the second start's plain finish on its subgraph
-  std::size_t candidate_finish_iterations = 0;  // the finish of the start that was not kept
+  std::size_t candidate_finish_iterations = 0;  // the finishes of the starts that were not kept
   // Loop closures the dead-reckoning start left out of its first finish (robust_optimizer.cpp,
   // heldFromDeadReckoning); 0 when that start did not run.
   std::size_t dead_reckoning_held = 0;
