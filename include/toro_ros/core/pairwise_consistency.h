@@ -1,6 +1,7 @@
 // Which loop closures of a whole graph their neighbours agree with: the pairwise consistency of
 // loop_closure_pairs.h (Mangelson et al., ICRA 2018) applied to every loop closure at once, for the
-// batch optimiser's robust dead-reckoning start (robust_optimizer.cpp).  The live pipeline asks
+// batch optimiser's robust dead-reckoning and corroborated starts (robust_optimizer.cpp,
+// heldFromDeadReckoning).  The live pipeline asks
 // the same question one arrival at a time (MapOptimizer::consistentPartners, with the same window,
 // partner count and scale statistic).
 //
