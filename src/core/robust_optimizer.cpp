@@ -51,17 +51,38 @@ struct Candidate {
   double width = 0.0;  // the kernel width its finish ran with (0: none yet)
 };
 
+// A loop closure's innovation chi2 against the odometry (odometryInnovationChi2) above this
+// refutes it: kOdometryConsistencyLenience times the chi-square quantile at
+// kOdometryConsistencyConfidence.
+double odometryConsistencyThreshold(const PoseGraph& graph) {
+  const int dof = graph.dimension() == GraphDimension::k2D ? 3 : 6;
+  return kOdometryConsistencyLenience * chiSquareQuantile(kOdometryConsistencyConfidence, dof);
+}
+
+// `graph` with the constraints `left_out` marks removed (its poses and fixed nodes kept).
+PoseGraph graphWithout(const PoseGraph& graph, const std::vector<char>& left_out) {
+  PoseGraph kept;
+  kept.setDimension(graph.dimension());
+  for (const Node& n : graph.nodes()) kept.addNode(n.id, n.pose);
+  for (NodeId id : graph.fixedNodes()) kept.addFixed(id);
+  for (std::size_t c = 0; c < graph.numConstraints(); ++c)
+    if (!left_out[c]) kept.addConstraint(graph.constraints()[c]);
+  return kept;
+}
+
 // The odometry and the loop closures that agree with it alone (innovation chi2 within
-// kOdometryConsistencyLenience times the chi-square quantile at kOdometryConsistencyConfidence),
-// plus those between poses the odometry does not connect (nothing to test them against, and the
-// map needs them to join its pieces), at the dead-reckoned poses.  `in_subset` marks them.
-PoseGraph odometryConsistentSubgraph(const PoseGraph& graph, std::size_t* kept, std::vector<char>* in_subset) {
+// odometryConsistencyThreshold), plus those between poses the odometry does not connect (nothing
+// to test them against, and the map needs them to join its pieces), at the dead-reckoned poses.
+// `in_subset` marks them; `innovation_out` receives each constraint's innovation
+// (odometryInnovationChi2: -1 for odometry and for loop closures the odometry does not connect).
+PoseGraph odometryConsistentSubgraph(const PoseGraph& graph, std::size_t* kept, std::vector<char>* in_subset,
+                                     std::vector<double>* innovation_out) {
   TreeOptimizer dead_reckoning;
   dead_reckoning.setGraph(graph, InitialGuess::kChainOdometry);
   const PoseGraph& odometry = dead_reckoning.graph();
-  const std::vector<double> innovation = odometryInnovationChi2(odometry);
-  const int dof = graph.dimension() == GraphDimension::k2D ? 3 : 6;
-  const double threshold = kOdometryConsistencyLenience * chiSquareQuantile(kOdometryConsistencyConfidence, dof);
+  *innovation_out = odometryInnovationChi2(odometry);
+  const std::vector<double>& innovation = *innovation_out;
+  const double threshold = odometryConsistencyThreshold(graph);
   PoseGraph subset;
   subset.setDimension(graph.dimension());
   for (const Node& n : odometry.nodes()) subset.addNode(n.id, n.pose);
@@ -90,14 +111,11 @@ PoseGraph odometryConsistentSubgraph(const PoseGraph& graph, std::size_t* kept, 
 // dead-reckoning start runs when wrong loop closures bent the first start, and a sender whose
 // covariances are far too large makes bending cheap at any width in the declared units
 // (parking-garage.g2o with 100 random wrong ones: one of them pulled this start 10.9 m off; with
-// them left out, 0.003 m).  Counted in `*held_count`.
-std::vector<char> heldFromDeadReckoning(const PoseGraph& graph, std::size_t* held_count) {
-  TreeOptimizer dead_reckoning;
-  dead_reckoning.setGraph(graph, InitialGuess::kChainOdometry);
-  const std::vector<double> innovation = odometryInnovationChi2(dead_reckoning.graph());
-  const int dof = graph.dimension() == GraphDimension::k2D ? 3 : 6;
-  const double threshold =
-      kOdometryConsistencyLenience * chiSquareQuantile(kOdometryConsistencyConfidence, dof);
+// them left out, 0.003 m).  `innovation`: odometryConsistentSubgraph's, so the odometry is not
+// dead-reckoned and composed again.  Counted in `*held_count`.
+std::vector<char> heldFromDeadReckoning(const PoseGraph& graph, const std::vector<double>& innovation,
+                                        std::size_t* held_count) {
+  const double threshold = odometryConsistencyThreshold(graph);
   const PairwiseConsistency pairs = pairwiseConsistency(graph);
   std::vector<char> held(graph.numConstraints(), 0);
   *held_count = 0;
@@ -142,20 +160,14 @@ class RobustRun {
 
   // Start 2: the odometry-consistent subgraph by plain TORO (chained on its tree): the loop
   // closures the odometry agrees with close their loops, however long.
-  Candidate fromConsistentLoopClosures(const PoseGraph& graph, std::vector<char>* in_subset) {
-    PoseGraph subset = odometryConsistentSubgraph(graph, &report_->odometry_consistent_loop_closures, in_subset);
-    OptimizeOptions plain = options_;
-    plain.robust = RobustOptions{};
-    plain.initial_guess = InitialGuess::kChainOnTree;
-    // TORO only: a plain finish on a subgraph with wrong loop closures in it would pay their
-    // fill-in for nothing (measured 30 s on sphere2500 with 1000 random ones).
-    plain.mode = OptimizeMode::kToro;
-    const OptimizeReport subset_report = optimizeGraph(subset, plain);
-    report_->toro_iterations += subset_report.toro_iterations;
+  Candidate fromConsistentLoopClosures(const PoseGraph& graph, std::vector<char>* in_subset,
+                                       std::vector<double>* innovation) {
+    PoseGraph subset =
+        odometryConsistentSubgraph(graph, &report_->odometry_consistent_loop_closures, in_subset, innovation);
+    OptimizeReport subset_report;
+    Candidate c = toroOnSubgraph(graph, subset, &subset_report);
     report_->subset_finish_iterations = subset_report.finish.iterations;
     report_->initial_chi2 = robustObjective(graph, options_.robust);
-    Candidate c{graph, subset_report.switch_reason, {}, 0.0};
-    copyPoses(subset, c.graph);
     record_(OptimizePhase::kStart, 0, robustObjective(c.graph, options_.robust), 0.0, true, &c.graph);
     return c;
   }
@@ -163,19 +175,23 @@ class RobustRun {
   // Start 3: the odometry-consistent loop closures that pairs of nearby ones do not hold
   // (heldFromDeadReckoning), by plain TORO chained on their tree.
   Candidate fromCorroboratedLoopClosures(const PoseGraph& graph, const std::vector<char>& held) {
-    PoseGraph subset;
-    subset.setDimension(graph.dimension());
-    for (const Node& n : graph.nodes()) subset.addNode(n.id, n.pose);
-    for (NodeId id : graph.fixedNodes()) subset.addFixed(id);
-    for (std::size_t c = 0; c < graph.numConstraints(); ++c)
-      if (!held[c]) subset.addConstraint(graph.constraints()[c]);
+    PoseGraph subset = graphWithout(graph, held);
+    OptimizeReport subset_report;
+    return toroOnSubgraph(graph, subset, &subset_report);
+  }
+
+  // Plain TORO chained on the tree of `subset` (a subgraph of `graph`), as a candidate for the
+  // whole graph at the poses it reached.
+  Candidate toroOnSubgraph(const PoseGraph& graph, PoseGraph& subset, OptimizeReport* subset_report) {
     OptimizeOptions plain = options_;
     plain.robust = RobustOptions{};
     plain.initial_guess = InitialGuess::kChainOnTree;
+    // TORO only: a plain finish on a subgraph with wrong loop closures in it would pay their
+    // fill-in for nothing (measured 30 s on sphere2500 with 1000 random ones).
     plain.mode = OptimizeMode::kToro;
-    const OptimizeReport subset_report = optimizeGraph(subset, plain);
-    report_->toro_iterations += subset_report.toro_iterations;
-    Candidate c{graph, subset_report.switch_reason, {}, 0.0};
+    *subset_report = optimizeGraph(subset, plain);
+    report_->toro_iterations += subset_report->toro_iterations;
+    Candidate c{graph, subset_report->switch_reason, {}, 0.0};
     copyPoses(subset, c.graph);
     return c;
   }
@@ -198,12 +214,7 @@ class RobustRun {
   // the settled map's residuals call for: the held ones are weighed by their residuals on a map
   // they did not bend.
   void finishLeavingOut(Candidate& c, const std::vector<char>& held, double width) {
-    Candidate without{PoseGraph{}, c.reason, {}, 0.0};
-    without.graph.setDimension(c.graph.dimension());
-    for (const Node& n : c.graph.nodes()) without.graph.addNode(n.id, n.pose);
-    for (NodeId id : c.graph.fixedNodes()) without.graph.addFixed(id);
-    for (std::size_t k = 0; k < c.graph.numConstraints(); ++k)
-      if (!held[k]) without.graph.addConstraint(c.graph.constraints()[k]);
+    Candidate without{graphWithout(c.graph, held), c.reason, {}, 0.0};
     finish(without, options_.finish.max_iterations, width);
     copyPoses(without.graph, c.graph);
     finish(c, options_.finish.max_iterations, settledWidth(without, options_.robust.width));
@@ -281,7 +292,8 @@ void optimizeRobustly(PoseGraph& graph, const OptimizeOptions& options, const Re
   // loops.  Dead reckoning is needed only when some loop closure the odometry agreed with (or
   // could not judge) ended rejected: then wrong ones may have bent that start.
   std::vector<char> in_subset;
-  Candidate first = run.fromConsistentLoopClosures(graph, &in_subset);
+  std::vector<double> innovation;  // each loop closure's against the odometry
+  Candidate first = run.fromConsistentLoopClosures(graph, &in_subset, &innovation);
   // Its residuals are near a plain optimum already: the width may narrow to them before the robust
   // finish (senders whose covariances are too large).
   // Only kCheckIterations at first: a start bent by wrong loop closures converges slowly (and pays
@@ -311,7 +323,7 @@ void optimizeRobustly(PoseGraph& graph, const OptimizeOptions& options, const Re
       // No wider than what the first start's residuals called for: a sender whose covariances are
       // far too large (parking-garage) makes wrong loop closures pull hard even at width 1.
       const double width = std::min({options.robust.width, kDeadReckoningWidth, first.width});
-      held = heldFromDeadReckoning(graph, &report->dead_reckoning_held);
+      held = heldFromDeadReckoning(graph, innovation, &report->dead_reckoning_held);
       if (report->dead_reckoning_held > 0)
         run.finishLeavingOut(*second, held, width);
       else
