@@ -76,7 +76,8 @@ class LmRun {
   LmRun(PoseGraph& graph, const FinishOptions& options, bool end_when_regained = false)
       : options_(options),
         problem_(graph, options.linear_solver, options.robust,
-                 options.robust.enabled() ? options.robust_set_aside_weight : 0.0),
+                 options.robust.enabled() ? options.robust_set_aside_weight : 0.0,
+                 options.robust_scaled_damping),
         end_when_regained_(end_when_regained) {}
 
   FinishReport run(PoseGraph& graph, const FinishCallback& callback,
@@ -147,14 +148,22 @@ void LmRun<Model>::iterate(FinishIteration* it) {
   const Clock::time_point solve_start = Clock::now();
   const bool solved = problem_.solveStep(lambda_, &step_);
   report_.factorization_seconds += secondsSince(solve_start);
+  if (solved && problem_.setAsideTooStiff()) {
+    // The step is not a solution; the next round factorises the set-aside loop closures.
+    report_.stop = FinishStop::kSetAsideTooStiff;
+    it->accepted = false;
+    it->chi2 = chi2_;
+    it->seconds = secondsSince(start_);
+    return;
+  }
   double new_chi2 = chi2_;
   std::vector<typename Model::State> trial;
   if (solved) {
     it->step_norm = step_.lpNorm<Eigen::Infinity>();
     trial = problem_.retracted(step_);
     new_chi2 = problem_.cost(trial);
-    // Decrease predicted by the damped quadratic model: -h^T b + lambda |h|^2 (> 0).
-    const double predicted = -step_.dot(problem_.b()) + lambda_ * step_.squaredNorm();
+    // Decrease predicted by the damped quadratic model: -h^T b + h^T D h (> 0).
+    const double predicted = -step_.dot(problem_.b()) + problem_.dampedSquaredNorm(step_, lambda_);
     it->gain_ratio = predicted > 0.0 ? (chi2_ - new_chi2) / predicted : -1.0;
   }
   it->accepted = solved && std::isfinite(new_chi2) && it->gain_ratio > 0.0 && new_chi2 < chi2_;
@@ -246,6 +255,8 @@ const char* finishStopName(FinishStop stop) {
       return "nothing to optimise";
     case FinishStop::kSetAsideRegained:
       return "set-aside loop closures regained weight";
+    case FinishStop::kSetAsideTooStiff:
+      return "set-aside loop closures too stiff to leave out of the factorisation";
   }
   return "unknown";
 }
@@ -263,7 +274,8 @@ namespace {
 
 // Runs the finish; when set-aside loop closures regain weight, again with them in the
 // factorisation (at most kMaxSetAsideRounds rounds; the last one runs to the end regardless,
-// exact through the conjugate-gradient correction); one report.
+// exact through the conjugate-gradient correction), and when they are too stiff to be left out
+// (FinishProblem::setAsideTooStiff), at once with every loop closure factorised; one report.
 template <class Model>
 FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const FinishCallback& callback,
                           const std::vector<Constraint>& candidates) {
@@ -288,11 +300,15 @@ FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const 
       total.conjugate_gradient_iterations += r.conjugate_gradient_iterations;
       total.history.insert(total.history.end(), r.history.begin(), r.history.end());
     }
-    if (r.stop != FinishStop::kSetAsideRegained || total.iterations >= options.max_iterations) {
-      if (total.stop == FinishStop::kSetAsideRegained) total.stop = FinishStop::kMaxIterations;
+    const bool new_round = r.stop == FinishStop::kSetAsideRegained || r.stop == FinishStop::kSetAsideTooStiff;
+    if (!new_round || total.iterations >= options.max_iterations) {
+      if (new_round) total.stop = FinishStop::kMaxIterations;
       return total;
     }
     round_options.max_iterations = options.max_iterations - total.iterations;
+    // Too stiff: every loop closure in the factorisation from now on (setting aside by weight
+    // again would leave the same ones out).
+    if (r.stop == FinishStop::kSetAsideTooStiff) round_options.robust_set_aside_weight = 0.0;
   }
 }
 
