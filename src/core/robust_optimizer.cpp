@@ -11,6 +11,10 @@
 // robust objective (sum rho over loop closures + chi2 of odometry) tells which one explains the
 // measurements better, and a few finish iterations make that comparison reliable (after TORO alone
 // the second start's map is not yet converged).
+//
+// Then, on the kept map, the rejected loop closures that the map without them predicts are counted
+// in full once and weighed again (RobustRun::predictedRejected): a right one that the map reached
+// without pulling towards it otherwise stays rejected at any width.
 #include <algorithm>
 #include <optional>
 #include <sstream>
@@ -59,14 +63,20 @@ double odometryConsistencyThreshold(const PoseGraph& graph) {
   return kOdometryConsistencyLenience * chiSquareQuantile(kOdometryConsistencyConfidence, dof);
 }
 
-// `graph` with the constraints `left_out` marks removed (its poses and fixed nodes kept).
-PoseGraph graphWithout(const PoseGraph& graph, const std::vector<char>& left_out) {
+// `graph` (its poses and fixed nodes kept) with the constraints `left_out` marks removed and those
+// `gaussian` marks, if given, counted as odometry: plain least squares in a robust finish.
+PoseGraph graphWithout(const PoseGraph& graph, const std::vector<char>& left_out,
+                       const std::vector<char>* gaussian = nullptr) {
   PoseGraph kept;
   kept.setDimension(graph.dimension());
   for (const Node& n : graph.nodes()) kept.addNode(n.id, n.pose);
   for (NodeId id : graph.fixedNodes()) kept.addFixed(id);
-  for (std::size_t c = 0; c < graph.numConstraints(); ++c)
-    if (!left_out[c]) kept.addConstraint(graph.constraints()[c]);
+  for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
+    if (left_out[c]) continue;
+    Constraint k = graph.constraints()[c];
+    if (gaussian && (*gaussian)[c]) k.kind = ConstraintKind::kOdometry;
+    kept.addConstraint(k);
+  }
   return kept;
 }
 
@@ -257,6 +267,79 @@ class RobustRun {
     c.finish.history.insert(c.finish.history.begin(), first.history.begin(), first.history.end());
   }
 
+  // The loop closures rejected in `c` (weight below kRejectedWeight at its width) that the map
+  // without them predicts: their innovation chi2 (FinishReport::innovation_chi2, the rise of the
+  // optimum's chi2 were each added alone) within odometryConsistencyThreshold times the
+  // a-posteriori variance factor of that map (at most 1, so a sender whose covariances are too
+  // large gets a narrower test, not a wider one).  Why: a right loop closure that the map reached
+  // without ever pulling towards it keeps its whole residual and a weight of ~1e-6, so no finish
+  // moves it (manhattan with 100 grouped wrong ones: 30 right ones rejected with residual chi2 up
+  // to 9e4, yet innovations 0.4-30 against a threshold of 38; the wrong ones' were 1,090 and more).
+  std::vector<char> predictedRejected(const PoseGraph& graph, const Candidate& c, std::size_t* count) const {
+    RobustOptions robust = options_.robust;
+    robust.width = c.width;
+    const std::vector<double> weights = robustWeights(c.graph, robust);
+    std::vector<char> rejected(graph.numConstraints(), 0);
+    std::vector<Constraint> candidates;
+    std::vector<std::size_t> index;
+    std::size_t accepted = 0;
+    for (std::size_t k = 0; k < graph.numConstraints(); ++k) {
+      if (!isLoopClosure(graph.constraints()[k])) continue;
+      if (weights[k] >= kRejectedWeight) {
+        ++accepted;
+        continue;
+      }
+      rejected[k] = 1;
+      candidates.push_back(c.graph.constraints()[k]);
+      index.push_back(k);
+    }
+    std::vector<char> predicted(graph.numConstraints(), 0);
+    *count = 0;
+    if (candidates.empty() || accepted == 0) return predicted;
+    PoseGraph without = graphWithout(c.graph, rejected);
+    FinishOptions o = finish_;
+    o.robust.width = c.width;
+    o.max_iterations = 1;  // the innovations are computed at the end of the run
+    const FinishReport r = LevenbergMarquardt(o).optimize(without, nullptr, candidates);
+    const double dof = graph.dimension() == GraphDimension::k2D ? 3.0 : 6.0;
+    const double variance_factor = r.final_chi2 / (dof * static_cast<double>(accepted));
+    const double threshold = odometryConsistencyThreshold(graph) * std::min(1.0, variance_factor);
+    for (std::size_t k = 0; k < candidates.size(); ++k) {
+      const double innovation = r.innovation_chi2[k];
+      predicted[index[k]] = innovation >= 0.0 && innovation <= threshold;
+      *count += predicted[index[k]];
+    }
+    return predicted;
+  }
+
+  // Finishes `c` with the loop closures `predicted` marks counted in full, so they pull the map
+  // out of the residual that kept their weight at ~0, then robustly again from there (each
+  // weighed by its own residual once more); kept when the robust objective at the width of `c`
+  // ends lower.  Returns whether it was kept.
+  bool readmitPredicted(Candidate& c, const std::vector<char>& predicted) {
+    const std::vector<char> none(predicted.size(), 0);
+    Candidate gaussian{graphWithout(c.graph, none, &predicted), c.reason, {}, 0.0};
+    finish(gaussian, options_.finish.max_iterations, c.width);
+    Candidate trial{c.graph, c.reason, {}, 0.0};
+    copyPoses(gaussian.graph, trial.graph);
+    finish(trial, options_.finish.max_iterations, c.width);
+    RobustOptions robust = options_.robust;
+    robust.width = c.width;
+    if (!(robustObjective(trial.graph, robust) < robustObjective(c.graph, robust))) return false;
+    trial.finish.iterations += gaussian.finish.iterations + c.finish.iterations;
+    trial.finish.seconds += gaussian.finish.seconds + c.finish.seconds;
+    trial.finish.factorization_seconds +=
+        gaussian.finish.factorization_seconds + c.finish.factorization_seconds;
+    trial.finish.initial_chi2 = c.finish.initial_chi2;
+    trial.finish.initial_objective = c.finish.initial_objective;
+    trial.finish.history.insert(trial.finish.history.begin(), gaussian.finish.history.begin(),
+                                gaussian.finish.history.end());
+    trial.finish.history.insert(trial.finish.history.begin(), c.finish.history.begin(),
+                                c.finish.history.end());
+    c = std::move(trial);
+    return true;
+  }
+
   double adaptWidth(Candidate& c) {
     for (int round = 0; round < kWidthRounds; ++round) {
       const double adapted = settledWidth(c, options_.robust.width);
@@ -369,6 +452,12 @@ void optimizeRobustly(PoseGraph& graph, const OptimizeOptions& options, const Re
   }
   if (with_finish && best == &first) run.finishFurther(first);
   report->robust_width = with_finish ? run.adaptWidth(*best) : options.robust.width;
+  // Right loop closures the kept map reached without pulling towards them stay rejected at any
+  // width; those the map predicts are counted in full once, then weighed again.
+  if (with_finish && second) {
+    const std::vector<char> predicted = run.predictedRejected(graph, *best, &report->predicted_rejected);
+    if (report->predicted_rejected > 0) report->predicted_readmitted = run.readmitPredicted(*best, predicted);
+  }
   report->toro_seconds = 0.0;  // the phases interleave; see the history
   if (with_finish) report->finish = best->finish;
   const bool kept_third = third && best == &*third;
@@ -396,6 +485,10 @@ void optimizeRobustly(PoseGraph& graph, const OptimizeOptions& options, const Re
   } else {
     why << " (none of its loop closures rejected: dead reckoning was not needed)";
   }
+  if (report->predicted_rejected > 0)
+    why << "; " << report->predicted_rejected << " rejected loop closure(s) the map predicts "
+        << (report->predicted_readmitted ? "counted in full once, then weighed again"
+                                         : "tried in full and left (no lower robust cost)");
   why << "; its TORO phase: " << best->reason;
   report->switch_reason = why.str();
   copyPoses(best->graph, graph);
