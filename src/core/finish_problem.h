@@ -220,8 +220,8 @@ class FinishProblem {
   // y += (set-aside part of H) x, from the linearisations stored by linearize().
   void addSetAsideProduct(const Eigen::VectorXd& x, Eigen::VectorXd* y) const;
   // Improves `x` towards (H_factorised + D + H_set_aside) x = rhs by preconditioned CG, D the
-  // damping at lambda;
-  // false when it did not converge (the set-aside edges are too stiff for this preconditioner).
+  // damping at lambda; false when it did not converge (the set-aside edges are too stiff for this
+  // preconditioner).
   bool refineWithSetAside(const Eigen::VectorXd& rhs, double lambda, Eigen::VectorXd* x);
   void addUpper(const std::array<int, D>& offsets, const Mat& block);
   void addFull(const std::array<int, D>& offsets, const Mat& block);

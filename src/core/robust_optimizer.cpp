@@ -80,6 +80,16 @@ PoseGraph graphWithout(const PoseGraph& graph, const std::vector<char>& left_out
   return kept;
 }
 
+// `later` as the report of one finish that began with `earlier`: iterations and times summed,
+// `earlier`'s iterations first in the history.  The initial chi2 and objective stay `later`'s;
+// a caller whose earlier finish ran on the same constraints takes `earlier`'s.
+void prependFinish(FinishReport& later, const FinishReport& earlier) {
+  later.iterations += earlier.iterations;
+  later.seconds += earlier.seconds;
+  later.factorization_seconds += earlier.factorization_seconds;
+  later.history.insert(later.history.begin(), earlier.history.begin(), earlier.history.end());
+}
+
 // The odometry and the loop closures that agree with it alone (innovation chi2 within
 // odometryConsistencyThreshold), plus those between poses the odometry does not connect (nothing
 // to test them against, and the map needs them to join its pieces), at the dead-reckoned poses.
@@ -230,11 +240,7 @@ class RobustRun {
     finish(c, options_.finish.max_iterations, settledWidth(without, options_.robust.width));
     // One report for both: the iterations and time of the finish without them count too (its
     // chi2 at the start is over fewer constraints, so the whole finish's is kept).
-    c.finish.iterations += without.finish.iterations;
-    c.finish.seconds += without.finish.seconds;
-    c.finish.factorization_seconds += without.finish.factorization_seconds;
-    c.finish.history.insert(c.finish.history.begin(), without.finish.history.begin(),
-                            without.finish.history.end());
+    prependFinish(c.finish, without.finish);
   }
 
   void finish(Candidate& c, std::size_t max_iterations, double width = 0.0) {
@@ -251,9 +257,6 @@ class RobustRun {
     c.objective = robustObjective(c.graph, r);
   }
 
-  // Adapts the kernel width to the accepted loop closures' residuals (RobustOptions::
-  // adaptive_width_factor) and refines `c` with it, until the width changes by less than a factor
-  // of kWidthSettled (at most kWidthRounds times); returns the width the result holds for.
   // Continues the finish of `c` to its iteration limit when its last one stopped there.
   void finishFurther(Candidate& c) {
     if (c.finish.stop != FinishStop::kMaxIterations || c.finish.iterations >= options_.finish.max_iterations) return;
@@ -261,10 +264,7 @@ class RobustRun {
     finish(c, options_.finish.max_iterations - first.iterations, c.width);
     c.finish.initial_chi2 = first.initial_chi2;
     c.finish.initial_objective = first.initial_objective;
-    c.finish.iterations += first.iterations;
-    c.finish.seconds += first.seconds;
-    c.finish.factorization_seconds += first.factorization_seconds;
-    c.finish.history.insert(c.finish.history.begin(), first.history.begin(), first.history.end());
+    prependFinish(c.finish, first);
   }
 
   // The loop closures rejected in `c` (weight below kRejectedWeight at its width) that the map
@@ -337,20 +337,17 @@ class RobustRun {
     RobustOptions robust = options_.robust;
     robust.width = c.width;
     if (!(robustObjective(trial.graph, robust) < robustObjective(c.graph, robust))) return false;
-    trial.finish.iterations += gaussian.finish.iterations + c.finish.iterations;
-    trial.finish.seconds += gaussian.finish.seconds + c.finish.seconds;
-    trial.finish.factorization_seconds +=
-        gaussian.finish.factorization_seconds + c.finish.factorization_seconds;
+    prependFinish(trial.finish, gaussian.finish);
+    prependFinish(trial.finish, c.finish);
     trial.finish.initial_chi2 = c.finish.initial_chi2;
     trial.finish.initial_objective = c.finish.initial_objective;
-    trial.finish.history.insert(trial.finish.history.begin(), gaussian.finish.history.begin(),
-                                gaussian.finish.history.end());
-    trial.finish.history.insert(trial.finish.history.begin(), c.finish.history.begin(),
-                                c.finish.history.end());
     c = std::move(trial);
     return true;
   }
 
+  // Adapts the kernel width to the accepted loop closures' residuals (RobustOptions::
+  // adaptive_width_factor) and refines `c` with it, until the width changes by less than a factor
+  // of kWidthSettled (at most kWidthRounds times); returns the width the result holds for.
   double adaptWidth(Candidate& c) {
     for (int round = 0; round < kWidthRounds; ++round) {
       const double adapted = settledWidth(c, options_.robust.width);

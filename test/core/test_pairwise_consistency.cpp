@@ -4,7 +4,7 @@
 
 #include <cmath>
 
-#include "shared_datasets.h"
+#include "robust_cases.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
@@ -130,31 +130,12 @@ namespace {
 // of the wrong ones may end accepted, none of the right ones rejected, and the map must end at the
 // clean optimum.
 void expectCleanOptimumWithRandomWrongOnes(const std::string& file, std::size_t count, RobustStart not_kept) {
-  // As the programs do: with the libraries' own thread counts the finishes of these graphs wait
-  // for each other's threads whenever the machine is busy (28 s instead of 0.7 s beside a build).
-  setSolverThreads(kDefaultSolverThreads);
-  const PoseGraph original = readGraph(toro_test::datasetPath(file));
-  PoseGraph clean = original;
-  optimizeGraph(clean, OptimizeOptions{});
-  OutlierOptions oo;
-  oo.kind = OutlierKind::kRandom;
-  oo.count = count;
-  oo.seed = 1;
-  const GraphWithOutliers bad = addOutliers(original, oo, &clean);
-  OptimizeOptions o;
-  o.robust = RobustOptions{RobustKernel::kDcs, kDefaultRobustWidth};
-  o.initial_guess = InitialGuess::kChainOdometry;
-  PoseGraph result = bad.graph;
-  const OptimizeReport r = optimizeGraph(result, o);
-  EXPECT_NE(r.robust_start, not_kept) << file;
-  EXPECT_GT(r.dead_reckoning_held, 0u) << file;
-  std::size_t wrong_accepted = 0, right_rejected = 0;
-  for (std::size_t c : bad.outliers) wrong_accepted += r.weights[c] >= kRejectedWeight;
-  for (std::size_t c = 0; c < original.numConstraints(); ++c)
-    right_rejected += isLoopClosure(original.constraints()[c]) && r.weights[c] < kRejectedWeight;
-  EXPECT_EQ(wrong_accepted, 0u) << file;
-  EXPECT_EQ(right_rejected, 0u) << file;
-  EXPECT_LT(alignedPositionRmse(result, clean), 0.05) << file;
+  const toro_test::SolvedWithOutliers s = toro_test::solveWithOutliers(file, OutlierKind::kRandom, count);
+  EXPECT_NE(s.report.robust_start, not_kept) << file;
+  EXPECT_GT(s.report.dead_reckoning_held, 0u) << file;
+  EXPECT_EQ(s.wrong_accepted, 0u) << file;
+  EXPECT_EQ(s.right_rejected, 0u) << file;
+  EXPECT_LT(s.rmse_to_clean, 0.05) << file;
 }
 
 }  // namespace

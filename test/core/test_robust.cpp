@@ -7,7 +7,7 @@
 #include <iostream>
 #include <random>
 
-#include "shared_datasets.h"
+#include "robust_cases.h"
 #include "toro_ros/core/block_stiffness.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
@@ -20,6 +20,10 @@
 #include "toro_ros/core/tree_optimizer.h"
 
 using namespace toro;
+using toro_test::robustOptions;
+using toro_test::SolvedWithOutliers;
+using toro_test::solveWithOutliers;
+using toro_test::withOutliers;
 
 namespace {
 
@@ -53,51 +57,6 @@ SyntheticGraph twoLaps(std::uint32_t seed) {
   noise.rotation_sigma_rad = 0.01;
   noise.seed = seed;
   return makeFromTrajectory(truth, loops, noise);
-}
-
-// `graph` with wrong loop closures from bench_robust's generator (grouped ones moved along `clean`).
-GraphWithOutliers withOutliers(const PoseGraph& graph, const PoseGraph& clean, OutlierKind kind,
-                               std::size_t count, std::uint32_t seed, std::size_t group_size = 10) {
-  OutlierOptions oo;
-  oo.kind = kind;
-  oo.count = count;
-  oo.seed = seed;
-  oo.group_size = group_size;
-  return addOutliers(graph, oo, &clean);
-}
-
-// optimizeGraph as `toro_optimize --robust` runs it: DCS at the default width, from the odometry.
-OptimizeOptions robustOptions() {
-  OptimizeOptions o;
-  o.robust = dcs();
-  o.initial_guess = InitialGuess::kChainOdometry;
-  return o;
-}
-
-// A shared dataset with bench_robust's wrong loop closures, solved as `toro_optimize --robust`
-// solves it, against the clean file's optimum.
-struct SolvedWithOutliers {
-  PoseGraph result;
-  OptimizeReport report;
-  double rmse_to_clean = 0.0;
-  std::size_t wrong_accepted = 0, right_rejected = 0;
-};
-
-SolvedWithOutliers solveWithOutliers(const std::string& file, OutlierKind kind, std::size_t count) {
-  // As the programs do: with the libraries' own thread counts the finish waits for its threads
-  // whenever the machine is busy.
-  setSolverThreads(kDefaultSolverThreads);
-  const PoseGraph original = readGraph(toro_test::datasetPath(file));
-  PoseGraph clean = original;
-  optimizeGraph(clean, OptimizeOptions{});
-  const GraphWithOutliers bad = withOutliers(original, clean, kind, count, 1);
-  SolvedWithOutliers s{bad.graph, {}, 0.0, 0, 0};
-  s.report = optimizeGraph(s.result, robustOptions());
-  s.rmse_to_clean = alignedPositionRmse(s.result, clean);
-  for (std::size_t c : bad.outliers) s.wrong_accepted += s.report.weights[c] >= kRejectedWeight;
-  for (std::size_t c = 0; c < original.numConstraints(); ++c)
-    s.right_rejected += isLoopClosure(original.constraints()[c]) && s.report.weights[c] < kRejectedWeight;
-  return s;
 }
 
 }  // namespace
@@ -463,8 +422,8 @@ TEST(RobustOptimize, ScaledDampingTakesTheRobustFinishToTheCleanOptimum) {
 // kitti_00 with 500 grouped wrong loop closures: the kept start reached its map with 15 of the 137
 // right loop closures at weight ~0, each keeping its whole residual, so no finish moved towards
 // them (4.0 m from the clean optimum).  The map without them predicts each (innovation chi2 within
-// the odometry-consistency threshold; the wrong ones' innovations exceed 1,000), so they are counted
-// in full once and weighed again: all 137 accepted, the clean optimum.
+// the 0.999 chi-square quantile times the map's variance factor; the wrong ones' innovations exceed
+// 1,000), so they are counted in full once and weighed again: all 137 accepted, the clean optimum.
 TEST(RobustOptimize, RejectedLoopClosuresTheMapPredictsAreCountedAgain) {
   TORO_REQUIRE_DATASETS();
   const SolvedWithOutliers s = solveWithOutliers("2d/kitti_00.g2o", OutlierKind::kGrouped, 500);

@@ -135,8 +135,9 @@ struct OptimizeReport {
   // heldFromDeadReckoning); 0 when that start did not run.
   std::size_t dead_reckoning_held = 0;
   // Loop closures the kept start rejected that the map without them predicts (innovation chi2
-  // within the odometry-consistency threshold, robust_optimizer.cpp), and whether counting them in
-  // full once lowered the robust cost (then the result is that finish's).
+  // within the chi-square quantile at kOdometryConsistencyConfidence, times the map's variance
+  // factor when below 1; robust_optimizer.cpp), and whether counting them in full once lowered the
+  // robust cost (then the result is that finish's).
   std::size_t predicted_rejected = 0;
   bool predicted_readmitted = false;
   std::vector<OptimizeIteration> history;  // kStart line first
