@@ -56,7 +56,7 @@ struct OptimizationOptions {
   // so below that the map is within this fraction of the optimum of the graph so far already
   // (TORO's pass handled the loop closure), and a finish would buy nothing.  0: after every change.
   bool background_finish = true;
-  double finish_min_interval_sec = 1.0;
+  double finish_min_interval_sec = 0.25;
   int finish_max_iterations = 20;
   double finish_chi2_tolerance = 0.01;
   // Support (with robust loop closures on): a new loop closure that would bend the map (its g2o
@@ -315,7 +315,14 @@ class MapOptimizer {
   // true; returns whether one did.  (consistentPartners and hasNeighbours.)
   template <class Visit>
   bool visitNeighbours(std::size_t c, Visit&& visit);
+  // The same within `window` keyframes of each end.
+  template <class Visit>
+  bool visitNeighbours(std::size_t c, std::size_t window, Visit&& visit);
   bool corroboratedByPartners(std::size_t c);
+  // For the finish's test of a held loop closure far from the map: enough loop closures within a
+  // window scaled to c's span agree with it at `pair_threshold` (the finish's release threshold,
+  // scaled by the map's variance factor), and the evidence between its places does not refute it.
+  bool corroboratedAcrossSpan(std::size_t c, double pair_threshold);
   bool leftToInnovation(std::size_t c);
   const std::vector<std::size_t>& odometrySteps();
   // last_chi2_ and weighted_chi2_ from the current poses and weights.
