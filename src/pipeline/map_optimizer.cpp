@@ -192,6 +192,11 @@ constexpr double kCorroboratedInnovationLenience = 10.0;
 // the odometry over a tenth of the loop is as precise against the loop as the window's is against
 // a short one, and the pair is tested at the map's variance factor, not the declared covariances.
 constexpr std::size_t kSpanWindowDivisor = 10;
+// Its cost bounded, as it runs in the worker at a merge: the window at most this many support
+// windows (MIT's witnesses lie 75-104 keyframes from each other's ends), and at most this many
+// loop closures examined per test (each pair composes the odometry between their near ends).
+constexpr std::size_t kMaxSpanWindows = 8;
+constexpr std::size_t kMaxWitnessTests = 32;
 // Finishes one ~optimize runs at most (each after the previous one released held loop closures).
 constexpr std::size_t kMaxFinishRounds = 4;
 
@@ -537,8 +542,9 @@ bool MapOptimizer::corroboratedAcrossSpan(std::size_t c, double pair_threshold) 
   // declares far more than its noise, wrong loop closures a few poses apart agree with each other
   // (intel.g2o replayed with 1000 of them: four released in its first 40 keyframes, 8.9 m off).
   if (tested_pairs_.count() < kMinPairsToAdaptSupport && !(pair_threshold < declaredQuantile())) return false;
+  const std::size_t support_window = static_cast<std::size_t>(options_.support_window_keyframes);
   const std::size_t window =
-      std::max(static_cast<std::size_t>(options_.support_window_keyframes), span(c) / kSpanWindowDivisor);
+      std::clamp(span(c) / kSpanWindowDivisor, support_window, kMaxSpanWindows * support_window);
   const toro::PoseGraph& g = optimizer_.graph();
   const std::vector<std::size_t>& steps = odometrySteps();
   const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
@@ -551,9 +557,11 @@ bool MapOptimizer::corroboratedAcrossSpan(std::size_t c, double pair_threshold) 
   // together far more rarely (MIT.g2o replayed with 1000 random wrong ones: 912 held with the
   // support window alone, 617 with witnesses agreeing with c only).
   std::vector<std::size_t> witnesses, seen;
+  bool exhausted = false;
   const bool found = visitNeighbours(c, window, [&](std::size_t j, std::size_t u, std::size_t other) {
     if (std::minmax(u, other) == std::minmax(a, b)) return false;  // the same two poses: no second view
     if (std::find(seen.begin(), seen.end(), j) != seen.end()) return false;
+    if (seen.size() >= kMaxWitnessTests) return exhausted = true;
     seen.push_back(j);
     if (odometryVerdict(j, supportThreshold()) < 0) return false;  // refuted: no witness
     if (!agree(c, j)) return false;
@@ -562,7 +570,7 @@ bool MapOptimizer::corroboratedAcrossSpan(std::size_t c, double pair_threshold) 
     witnesses.push_back(j);
     return false;
   });
-  return found && mapPathVerdict(c, false) >= 0;
+  return found && !exhausted && mapPathVerdict(c, false) >= 0;
 }
 
 bool MapOptimizer::leftToInnovation(std::size_t c) {
