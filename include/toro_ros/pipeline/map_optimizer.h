@@ -319,10 +319,10 @@ class MapOptimizer {
   template <class Visit>
   bool visitNeighbours(std::size_t c, std::size_t window, Visit&& visit);
   bool corroboratedByPartners(std::size_t c);
-  // For the finish's test of a held loop closure far from the map: enough loop closures within a
-  // window scaled to c's span agree with it at `pair_threshold` (the finish's release threshold,
-  // scaled by the map's variance factor), and the evidence between its places does not refute it.
-  bool corroboratedAcrossSpan(std::size_t c, double pair_threshold);
+  // For the finish's test of a held loop closure far from the map: two loop closures within a
+  // window scaled to c's span agree with it and with each other at `pair_threshold` (the finish's
+  // release threshold, scaled by the map's variance factor).  The caller adds the path's verdict.
+  bool witnessedAcrossSpan(std::size_t c, double pair_threshold);
   bool leftToInnovation(std::size_t c);
   const std::vector<std::size_t>& odometrySteps();
   // last_chi2_ and weighted_chi2_ from the current poses and weights.
