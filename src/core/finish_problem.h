@@ -130,9 +130,14 @@ class FinishProblem {
     return n;
   }
 
-  // The objective at states(), and the normal equations there: H = J^T W Omega J (upper),
+  // The objective at states(), and the normal equations there: H = J^T W Omega J (lower),
   // b = J^T W Omega e, W the robust weights (1 without robust edges).
-  double linearize();
+  double linearize() { return linearize(true); }
+  // The objective and b only, when nothing set aside needs H there: H follows when a step or the
+  // innovation test needs it (the same H, as linearize() would have left).  Why: most background
+  // finishes stop after their first step, on the decrease predicted from b alone, and H's
+  // accumulation is most of a linearisation.
+  double relinearizeGradient() { return linearize(!set_aside_.empty()); }
   const Eigen::VectorXd& b() const { return b_; }
   double maxDiagonal() const { return diagonal_.size() ? diagonal_.maxCoeff() : 0.0; }
   // Solves (H + D) step = -b, D the damping (damping()); false if the factorisation failed.
@@ -167,8 +172,13 @@ class FinishProblem {
   // The decrease -h^T b that the next step h would bring, estimated with the factorisation of
   // the previous (successful) solveStep and the current b: near the optimum H hardly changes, so
   // this costs two triangular solves instead of a factorisation.  Negative if not available.
+  // Without set-aside edges b^T (H + D)^-1 b is |L^-1 P b|^2, the forward half of the solve.
   double estimatedNextDecrease() {
     if (!factorized_) return -1.0;
+    if (set_aside_.empty()) {
+      Eigen::MatrixXd y;
+      if (cholesky_->forwardSolveColumns(b_, &y)) return y.allFinite() ? y.squaredNorm() : -1.0;
+    }
     Eigen::VectorXd step = cholesky_->solve(-b_);
     if (!set_aside_.empty()) refineWithSetAside(-b_, last_lambda_, &step);
     return step.allFinite() ? -step.dot(b_) : -1.0;
@@ -223,7 +233,14 @@ class FinishProblem {
   // damping at lambda; false when it did not converge (the set-aside edges are too stiff for this
   // preconditioner).
   bool refineWithSetAside(const Eigen::VectorXd& rhs, double lambda, Eigen::VectorXd* x);
-  void addUpper(const std::array<int, D>& offsets, const Mat& block);
+  // Adds the lower triangle of a diagonal block, `diagonal` its diagonal entries' offsets.
+  void addLower(const std::array<int, D>& diagonal, const Mat& block);
+  double linearize(bool with_hessian);
+  // H (and its diagonal) at states(), if the last linearisation left it out.
+  void ensureHessian() {
+    if (!hessian_current_) linearize(true);
+  }
+  // Adds an off-diagonal block (r, c), r > c, `offsets` its first row's offsets per column.
   void addFull(const std::array<int, D>& offsets, const Mat& block);
 
   RobustOptions robust_;
@@ -251,7 +268,8 @@ class FinishProblem {
   Eigen::VectorXd b_, diagonal_;
   std::vector<int> diagonal_index_;
   std::unique_ptr<SparseCholesky> cholesky_;
-  bool factorized_ = false;  // cholesky_ holds a valid factorisation
+  bool factorized_ = false;       // cholesky_ holds a valid factorisation
+  bool hessian_current_ = false;  // h_ and diagonal_ belong to states()
 };
 
 template <class Model>
@@ -345,18 +363,17 @@ void FinishProblem<Model>::buildPattern() {
   // per entry took 5 % of a replay's time, most finishes being warm starts of one iteration).
   const int n = static_cast<int>(b_.size());
   const int blocks = n / D;
-  // The block rows of each block column of the upper triangle, ascending; the diagonal last.
+  // The block rows of each block column of the lower triangle, ascending; the diagonal first.
   std::vector<std::vector<int>> rows(static_cast<std::size_t>(blocks));
+  for (std::size_t c = 0; c < rows.size(); ++c) rows[c].push_back(static_cast<int>(c));
   for (const Edge& e : edges_) {
     if (e.bi >= 0 && e.bj >= 0 && e.bi != e.bj)
-      rows[static_cast<std::size_t>(std::max(e.bi, e.bj))].push_back(std::min(e.bi, e.bj));
+      rows[static_cast<std::size_t>(std::min(e.bi, e.bj))].push_back(std::max(e.bi, e.bj));
   }
   std::size_t nonzeros = 0;
-  for (std::size_t c = 0; c < rows.size(); ++c) {
-    std::vector<int>& r = rows[c];
-    std::sort(r.begin(), r.end());
-    r.erase(std::unique(r.begin(), r.end()), r.end());
-    r.push_back(static_cast<int>(c));
+  for (std::vector<int>& r : rows) {
+    std::sort(r.begin() + 1, r.end());
+    r.erase(std::unique(r.begin() + 1, r.end()), r.end());
     nonzeros += D * (D * (r.size() - 1)) + D * (D + 1) / 2;
   }
   h_.resize(n, n);
@@ -368,39 +385,41 @@ void FinishProblem<Model>::buildPattern() {
     const std::vector<int>& r = rows[static_cast<std::size_t>(c)];
     for (int k = 0; k < D; ++k) {
       outer[c * D + k] = next;
-      for (std::size_t q = 0; q + 1 < r.size(); ++q)
+      for (int a = k; a < D; ++a) inner[next++] = c * D + a;
+      for (std::size_t q = 1; q < r.size(); ++q)
         for (int a = 0; a < D; ++a) inner[next++] = r[q] * D + a;
-      for (int a = 0; a <= k; ++a) inner[next++] = c * D + a;
     }
   }
   outer[n] = next;
   std::fill(h_.valuePtr(), h_.valuePtr() + nonzeros, 0.0);
-  // Where block (r, c), r <= c, starts in each of column c's scalar columns.
+  // Where block (r, c) starts in each of column c's scalar columns: r = c, its diagonal entry
+  // (the column's first); r > c, the block's first row.
   auto offsets = [&](int r, int c) {
-    const std::vector<int>& list = rows[static_cast<std::size_t>(c)];
-    const int position = static_cast<int>(std::lower_bound(list.begin(), list.end(), r) - list.begin());
     std::array<int, D> o;
-    for (int k = 0; k < D; ++k) o[k] = outer[c * D + k] + D * position;
+    if (r == c) {
+      for (int k = 0; k < D; ++k) o[k] = outer[c * D + k];
+      return o;
+    }
+    const std::vector<int>& list = rows[static_cast<std::size_t>(c)];
+    const int position = static_cast<int>(std::lower_bound(list.begin() + 1, list.end(), r) - list.begin());
+    for (int k = 0; k < D; ++k) o[k] = outer[c * D + k] + (D - k) + D * (position - 1);
     return o;
   };
   for (Edge& e : edges_) {
     if (e.bi >= 0) e.diag_i = offsets(e.bi, e.bi);
     if (e.bj >= 0) e.diag_j = offsets(e.bj, e.bj);
-    if (e.bi >= 0 && e.bj >= 0) e.off = offsets(std::min(e.bi, e.bj), std::max(e.bi, e.bj));
+    if (e.bi >= 0 && e.bj >= 0) e.off = offsets(std::max(e.bi, e.bj), std::min(e.bi, e.bj));
   }
   diagonal_index_.resize(n);
-  for (int c = 0; c < blocks; ++c) {
-    const int diagonal_block = D * (static_cast<int>(rows[static_cast<std::size_t>(c)].size()) - 1);
-    for (int k = 0; k < D; ++k) diagonal_index_[c * D + k] = outer[c * D + k] + diagonal_block + k;
-  }
+  for (int k = 0; k < n; ++k) diagonal_index_[k] = outer[k];
   diagonal_.setZero(n);
 }
 
 template <class Model>
-void FinishProblem<Model>::addUpper(const std::array<int, D>& offsets, const Mat& block) {
+void FinishProblem<Model>::addLower(const std::array<int, D>& diagonal, const Mat& block) {
   double* values = h_.valuePtr();
   for (int k = 0; k < D; ++k) {
-    for (int a = 0; a <= k; ++a) values[offsets[k] + a] += block(a, k);
+    for (int a = k; a < D; ++a) values[diagonal[k] + (a - k)] += block(a, k);
   }
 }
 
@@ -413,8 +432,9 @@ void FinishProblem<Model>::addFull(const std::array<int, D>& offsets, const Mat&
 }
 
 template <class Model>
-double FinishProblem<Model>::linearize() {
-  std::fill(h_.valuePtr(), h_.valuePtr() + h_.nonZeros(), 0.0);
+double FinishProblem<Model>::linearize(bool with_hessian) {
+  if (with_hessian) std::fill(h_.valuePtr(), h_.valuePtr() + h_.nonZeros(), 0.0);
+  hessian_current_ = with_hessian;
   b_.setZero();
   double objective = 0.0;
   typename Model::Lin lin;
@@ -433,19 +453,24 @@ double FinishProblem<Model>::linearize() {
     } else {
       objective += chi2;
     }
+    if (!with_hessian) {
+      if (e.bi >= 0) b_.template segment<D>(e.bi * D) += lin.d_from.transpose() * weighted_error;
+      if (e.bj >= 0) b_.template segment<D>(e.bj * D) += lin.d_to.transpose() * weighted_error;
+      continue;
+    }
     const Mat& information = *information_ptr;
     const Mat w_to = information * lin.d_to;
     if (e.bi >= 0) {
       const Mat w_from = information * lin.d_from;
-      addUpper(e.diag_i, lin.d_from.transpose() * w_from);
+      addLower(e.diag_i, lin.d_from.transpose() * w_from);
       b_.template segment<D>(e.bi * D) += lin.d_from.transpose() * weighted_error;
       if (e.bj >= 0) {
         const Mat h_ij = lin.d_from.transpose() * w_to;
-        addFull(e.off, e.bi < e.bj ? h_ij : Mat(h_ij.transpose()));
+        addFull(e.off, e.bi > e.bj ? h_ij : Mat(h_ij.transpose()));
       }
     }
     if (e.bj >= 0) {
-      addUpper(e.diag_j, lin.d_to.transpose() * w_to);
+      addLower(e.diag_j, lin.d_to.transpose() * w_to);
       b_.template segment<D>(e.bj * D) += lin.d_to.transpose() * weighted_error;
     }
   }
@@ -461,8 +486,10 @@ double FinishProblem<Model>::linearize() {
     if (e.bi >= 0) b_.template segment<D>(e.bi * D) += weight * (lin.d_from.transpose() * weighted_error);
     if (e.bj >= 0) b_.template segment<D>(e.bj * D) += weight * (lin.d_to.transpose() * weighted_error);
   }
-  for (int k = 0; k < diagonal_.size(); ++k) diagonal_[k] = h_.valuePtr()[diagonal_index_[k]];
-  diagonal_max_ = diagonal_.size() ? std::max(diagonal_.maxCoeff(), 1e-300) : 1.0;
+  if (with_hessian) {
+    for (int k = 0; k < diagonal_.size(); ++k) diagonal_[k] = h_.valuePtr()[diagonal_index_[k]];
+    diagonal_max_ = diagonal_.size() ? std::max(diagonal_.maxCoeff(), 1e-300) : 1.0;
+  }
   return objective;
 }
 
@@ -498,7 +525,7 @@ bool FinishProblem<Model>::refineWithSetAside(const Eigen::VectorXd& rhs, double
   constexpr int kStallCheck = 10;
   constexpr double kStalledResidual = 0.5;
   const auto apply = [&](const Eigen::VectorXd& v) {
-    Eigen::VectorXd out = h_.template selfadjointView<Eigen::Upper>() * v;
+    Eigen::VectorXd out = h_.template selfadjointView<Eigen::Lower>() * v;
     for (int k = 0; k < diagonal_.size(); ++k)
       out[k] += (diagonal_[k] + damping(k, lambda) - h_.valuePtr()[diagonal_index_[k]]) * v[k];
     addSetAsideProduct(v, &out);
@@ -533,6 +560,7 @@ std::vector<double> FinishProblem<Model>::innovationChi2(const PoseGraph& graph,
                                                          const std::vector<Constraint>& candidates) {
   std::vector<double> out(candidates.size(), -1.0);
   if (candidates.empty() || b_.size() == 0) return out;
+  ensureHessian();
   // Undamped first; a Hessian at the edge of definiteness (a node held by one weak constraint)
   // takes the least damping that factorises, which only narrows the predicted spread a little.
   double* values = h_.valuePtr();
@@ -610,6 +638,7 @@ std::vector<double> FinishProblem<Model>::innovationChi2(const PoseGraph& graph,
 
 template <class Model>
 bool FinishProblem<Model>::solveStep(double lambda, Eigen::VectorXd* step) {
+  ensureHessian();
   double* values = h_.valuePtr();
   for (int k = 0; k < diagonal_.size(); ++k) values[diagonal_index_[k]] = diagonal_[k] + damping(k, lambda);
   const bool ok = cholesky_->factorize(h_);

@@ -14,15 +14,16 @@
 namespace toro {
 namespace detail {
 
-// Symmetric matrices are stored by their upper triangle (column-major).
+// Symmetric matrices are stored by their lower triangle (column-major): the form CHOLMOD's
+// supernodal factorisation reads without a copy.
 using SparseMatrix = Eigen::SparseMatrix<double, Eigen::ColMajor, int>;
 
 class SparseCholesky {
  public:
   virtual ~SparseCholesky() = default;
-  virtual void analyzePattern(const SparseMatrix& upper) = 0;
+  virtual void analyzePattern(const SparseMatrix& lower) = 0;
   // False if the matrix is not (numerically) positive definite.
-  virtual bool factorize(const SparseMatrix& upper) = 0;
+  virtual bool factorize(const SparseMatrix& lower) = 0;
   virtual Eigen::VectorXd solve(const Eigen::VectorXd& rhs) = 0;
   // Several right-hand sides at once (CHOLMOD's supernodal solve then runs on BLAS-3 blocks).
   virtual Eigen::MatrixXd solveColumns(const Eigen::MatrixXd& rhs) = 0;

@@ -181,7 +181,7 @@ template <class Model>
 void LmRun<Model>::accept(std::vector<typename Model::State> trial, double new_chi2, FinishIteration* it) {
   const double relative_decrease = (chi2_ - new_chi2) / chi2_;
   problem_.states() = std::move(trial);
-  chi2_ = problem_.linearize();
+  chi2_ = problem_.relinearizeGradient();
   gradient_ = gradientNorm();
   lambda_ *= shrinkFactor(it->gain_ratio);
   nu_ = 2.0;
