@@ -52,16 +52,15 @@ UncertainPose measurementOf(const Constraint& k, bool planar) {
 }
 
 // The odometry from dense node u to dense node w (x_u^-1 x_w), false when a step is missing.
-bool odometryBetween(const PoseGraph& graph, const std::vector<std::size_t>& steps, std::size_t u, std::size_t w,
-                     bool planar, UncertainPose* out) {
+bool odometryBetween(const PoseGraph& graph, const OdometryChain& odometry, std::size_t u, std::size_t w,
+                     UncertainPose* out) {
   const std::size_t lo = std::min(u, w), hi = std::max(u, w);
   UncertainPose chain{Pose3(), Matrix6::Zero()};
   for (std::size_t v = lo + 1; v <= hi; ++v) {
-    if (steps[v] == kNoOdometry) return false;
-    const Constraint& k = graph.constraints()[steps[v]];
-    UncertainPose step = measurementOf(k, planar);
-    if (graph.indexOf(k.from) != v - 1) step = inverse(step);  // stored from v to v - 1
-    chain = compose(chain, step);
+    const std::size_t step = odometry.step(v);
+    if (step == kNoOdometry) return false;
+    const Pose3& z = graph.constraints()[step].measurement;
+    chain = compose(chain, {odometry.reversed(v) ? z.inverse() : z, odometry.covariance(v)});
   }
   *out = u <= w ? chain : inverse(chain);
   return true;
@@ -84,8 +83,35 @@ std::vector<std::size_t> odometrySteps(const PoseGraph& graph, const std::vector
   return steps;
 }
 
-double loopClosurePairChi2(const PoseGraph& graph, const std::vector<std::size_t>& odometry_steps, std::size_t c1,
-                           std::size_t c2, bool planar) {
+OdometryChain::OdometryChain(const PoseGraph& graph, const std::vector<bool>& is_loop_closure, bool planar)
+    : planar_(planar) {
+  for (std::size_t step : odometrySteps(graph, is_loop_closure)) append(graph, step);
+}
+
+void OdometryChain::append(const PoseGraph& graph, std::size_t step) {
+  const std::size_t v = steps_.size();
+  steps_.push_back(step);
+  reversed_.push_back(false);
+  covariances_.emplace_back(Matrix6::Zero());
+  if (step == kNoOdometry) return;
+  const Constraint& k = graph.constraints()[step];
+  UncertainPose forward = measurementOf(k, planar_);
+  if (graph.indexOf(k.from) != v - 1) {  // stored from v to v - 1
+    forward = inverse(forward);
+    reversed_.back() = true;
+  }
+  covariances_.back() = forward.covariance;
+}
+
+void OdometryChain::clear() {
+  steps_.clear();
+  reversed_.clear();
+  covariances_.clear();
+}
+
+double loopClosurePairChi2(const PoseGraph& graph, const OdometryChain& odometry, std::size_t c1,
+                           std::size_t c2) {
+  const bool planar = odometry.planar();
   const Constraint& k1 = graph.constraints()[c1];
   const Constraint& k2 = graph.constraints()[c2];
   const std::size_t a = graph.indexOf(k1.from), b = graph.indexOf(k1.to);
@@ -97,18 +123,16 @@ double loopClosurePairChi2(const PoseGraph& graph, const std::vector<std::size_t
     z2 = inverse(z2);
   }
   UncertainPose o_ac, o_db;
-  if (!odometryBetween(graph, odometry_steps, a, c, planar, &o_ac) ||
-      !odometryBetween(graph, odometry_steps, d, b, planar, &o_db))
+  if (!odometryBetween(graph, odometry, a, c, &o_ac) || !odometryBetween(graph, odometry, d, b, &o_db))
     return -1.0;
   return cycleChi2(compose(compose(compose(inverse(measurementOf(k1, planar)), o_ac), z2), o_db), planar);
 }
 
-double loopClosureOdometryChi2(const PoseGraph& graph, const std::vector<std::size_t>& odometry_steps, std::size_t c,
-                               bool planar) {
+double loopClosureOdometryChi2(const PoseGraph& graph, const OdometryChain& odometry, std::size_t c) {
   const Constraint& k = graph.constraints()[c];
   UncertainPose o_ab;
-  if (!odometryBetween(graph, odometry_steps, graph.indexOf(k.from), graph.indexOf(k.to), planar, &o_ab)) return -1.0;
-  return cycleChi2(compose(inverse(measurementOf(k, planar)), o_ab), planar);
+  if (!odometryBetween(graph, odometry, graph.indexOf(k.from), graph.indexOf(k.to), &o_ab)) return -1.0;
+  return cycleChi2(compose(inverse(measurementOf(k, odometry.planar())), o_ab), odometry.planar());
 }
 
 double loopClosureChainChi2(const PoseGraph& graph, std::size_t c, const std::vector<ChainLink>& chain, bool planar) {

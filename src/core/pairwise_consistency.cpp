@@ -23,7 +23,7 @@ PairwiseConsistency pairwiseConsistency(const PoseGraph& graph) {
     incident[from[c]].push_back(c);
     incident[to[c]].push_back(c);
   }
-  const std::vector<std::size_t> steps = odometrySteps(graph, is_loop_closure);
+  const OdometryChain odometry(graph, is_loop_closure, planar);
   const auto near = [](std::size_t x, std::size_t y) { return (x > y ? x - y : y - x) <= kPairWindowNodes; };
 
   // Every pair once (the partner with the larger index is tested from the smaller); ends a few
@@ -35,7 +35,7 @@ PairwiseConsistency pairwiseConsistency(const PoseGraph& graph) {
     if (!is_loop_closure[c]) continue;
     const std::size_t a = std::min(from[c], to[c]), b = std::max(from[c], to[c]);
     if (b - a <= kPairWindowNodes) {
-      short_span[c] = loopClosureOdometryChi2(graph, steps, c, planar);
+      short_span[c] = loopClosureOdometryChi2(graph, odometry, c);
       continue;
     }
     // Nearest first: the shortest odometry between the near ends, the cheapest and most precise
@@ -48,7 +48,7 @@ PairwiseConsistency pairwiseConsistency(const PoseGraph& graph) {
         if (j <= c || cycles[c].size() >= kMaxPairsPerLoopClosure) continue;
         const std::size_t other = from[j] == u ? to[j] : from[j];
         if (!near(other, b) || std::minmax(u, other) == std::minmax(a, b)) continue;
-        const double chi2 = loopClosurePairChi2(graph, steps, c, j, planar);
+        const double chi2 = loopClosurePairChi2(graph, odometry, c, j);
         if (!(chi2 >= 0.0)) continue;  // the odometry does not join the near ends
         cycles[c].push_back(chi2);
         cycles[j].push_back(chi2);

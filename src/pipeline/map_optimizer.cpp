@@ -347,6 +347,7 @@ MapOptimizer::MapOptimizer(const OptimizationOptions& optimization, const toro::
       robust_width_(robust.width),
       last_chi2_(kNaN),
       weighted_chi2_(kNaN),
+      odometry_(planar),
       tested_pairs_(kPairSample, kSupportScaleQuantile),
       tested_paths_(kPairSample, kSupportScaleQuantile),
       tested_odometry_paths_(kPairSample, kSupportScaleQuantile),
@@ -462,14 +463,14 @@ std::optional<toro::Matrix6> MapOptimizer::odometryInformation(toro::NodeId a, t
   if (!g.hasNode(a) || !g.hasNode(b)) return std::nullopt;
   const std::size_t u = g.indexOf(a), w = g.indexOf(b);
   if (std::max(u, w) != std::min(u, w) + 1) return std::nullopt;  // not one step apart
-  const std::size_t step = odometrySteps()[std::max(u, w)];
+  const std::size_t step = odometry().step(std::max(u, w));
   if (step == toro::kNoOdometry) return std::nullopt;
   return g.constraints()[step].information;
 }
 
-const std::vector<std::size_t>& MapOptimizer::odometrySteps() {
+const toro::OdometryChain& MapOptimizer::odometry() {
   const toro::PoseGraph& g = optimizer_.graph();
-  for (std::size_t v = odometry_steps_.size(); v < g.numNodes(); ++v) {
+  for (std::size_t v = odometry_.size(); v < g.numNodes(); ++v) {
     std::size_t step = toro::kNoOdometry;
     if (v > 0)
       for (std::size_t c : optimizer_.incident(v))
@@ -477,9 +478,9 @@ const std::vector<std::size_t>& MapOptimizer::odometrySteps() {
           step = c;
           break;
         }
-    odometry_steps_.push_back(step);
+    odometry_.append(g, step);
   }
-  return odometry_steps_;
+  return odometry_;
 }
 
 template <class Visit>
@@ -506,7 +507,7 @@ bool MapOptimizer::visitNeighbours(std::size_t c, std::size_t window, Visit&& vi
 
 std::vector<std::size_t> MapOptimizer::consistentPartners(std::size_t c, bool record) {
   const toro::PoseGraph& g = optimizer_.graph();
-  const std::vector<std::size_t>& steps = odometrySteps();
+  const toro::OdometryChain& chain = odometry();
   const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
   const double threshold = supportThreshold();
   std::vector<std::size_t> partners;
@@ -514,7 +515,7 @@ std::vector<std::size_t> MapOptimizer::consistentPartners(std::size_t c, bool re
     if (odometryVerdict(j, threshold) < 0) return false;
     if (std::minmax(u, other) == std::minmax(a, b)) return false;  // the same two poses: no second view
     if (std::find(partners.begin(), partners.end(), j) != partners.end()) return false;
-    const double chi2 = toro::loopClosurePairChi2(g, steps, c, j, planar_);
+    const double chi2 = toro::loopClosurePairChi2(g, chain, c, j);
     if (!(chi2 >= 0.0)) return false;
     if (record) tested_pairs_.add(chi2);  // the threshold's statistic
     // No pair counts before the threshold knows the sender's scale (a few loop closures of the
@@ -547,10 +548,10 @@ bool MapOptimizer::witnessedAcrossSpan(std::size_t c, double pair_threshold) {
   const std::size_t window =
       std::clamp(span(c) / kSpanWindowDivisor, support_window, kMaxSpanWindows * support_window);
   const toro::PoseGraph& g = optimizer_.graph();
-  const std::vector<std::size_t>& steps = odometrySteps();
+  const toro::OdometryChain& chain = odometry();
   const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
   const auto agree = [&](std::size_t x, std::size_t y) {
-    const double chi2 = toro::loopClosurePairChi2(g, steps, x, y, planar_);
+    const double chi2 = toro::loopClosurePairChi2(g, chain, x, y);
     return chi2 >= 0.0 && chi2 <= pair_threshold;
   };
   // Witnesses that also agree with each other: so wide a window holds many wrong loop closures
@@ -636,7 +637,7 @@ double MapOptimizer::odometryCycleChi2(std::size_t c) {
   if (odometry_cycle_chi2_.size() <= c) odometry_cycle_chi2_.resize(c + 1, kNaN);
   double& chi2 = odometry_cycle_chi2_[c];
   // Measurements only, so it never changes while the constraints stay as they are.
-  if (std::isnan(chi2)) chi2 = toro::loopClosureOdometryChi2(optimizer_.graph(), odometrySteps(), c, planar_);
+  if (std::isnan(chi2)) chi2 = toro::loopClosureOdometryChi2(optimizer_.graph(), odometry(), c);
   return chi2;
 }
 
@@ -1282,7 +1283,7 @@ void MapOptimizer::replaceGraph(const toro::PoseGraph& graph, const std::vector<
     if (held) optimizer_.setWeightCap(c, caps[c]);
   }
   optimizer_.clearAffected();
-  odometry_steps_.clear();
+  odometry_.clear();
   finished_chi2_ = kNaN;
   settled_constraints_ = 0;
   ++structure_;
@@ -1300,7 +1301,7 @@ void MapOptimizer::clear() {
   last_full_stamp_ = ros::Time();
   full_passes_left_ = 0;
   last_chi2_ = weighted_chi2_ = kNaN;
-  odometry_steps_.clear();
+  odometry_.clear();
   tested_pairs_.clear();
   accepted_at_wider_threshold_.clear();
   rejudged_threshold_ = std::numeric_limits<double>::infinity();
@@ -1429,7 +1430,7 @@ void MapOptimizer::rejectCandidate(double chi2) {
     if (held) optimizer_.setWeightCap(added, later_caps[c - gate_constraint_ - 1]);
   }
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(gate_constraint_));
-  odometry_steps_.clear();  // constraint indices after the candidate moved down by one
+  odometry_.clear();  // constraint indices after the candidate moved down by one
   ++structure_;
   finished_chi2_ = kNaN;
   settled_constraints_ = 0;

@@ -67,15 +67,52 @@ TEST(LoopClosurePairs, TwoRightLoopClosuresAgreeAndAWrongOneDoesNot) {
   const std::size_t backwards = addLoopClosure(c, 24, 16);  // stored the other way round
   // Claims the robot was 3 m further than it was (a repeated structure along the corridor).
   const std::size_t wrong = addLoopClosure(c, 16, 24, Pose3::fromRollPitchYaw(3.0, 0, 0, 0, 0, 0));
-  const std::vector<std::size_t> steps = odometrySteps(c.graph, {});
-  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, right, neighbour, false), 0.0, 1e-9);
-  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, right, backwards, false), 0.0, 1e-9);
-  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, neighbour, right, false), 0.0, 1e-9);
-  const double chi2 = loopClosurePairChi2(c.graph, steps, right, wrong, false);
+  const OdometryChain odometry(c.graph, {}, false);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, odometry, right, neighbour), 0.0, 1e-9);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, odometry, right, backwards), 0.0, 1e-9);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, odometry, neighbour, right), 0.0, 1e-9);
+  const double chi2 = loopClosurePairChi2(c.graph, odometry, right, wrong);
   // 3 m against 0.1 m on both loop closures and ~0.05 m * sqrt(2) of odometry: about (3 / 0.15)^2.
   EXPECT_GT(chi2, 300.0);
   EXPECT_LT(chi2, 500.0);
-  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, wrong, right, false), chi2, 1e-6 * chi2);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, odometry, wrong, right), chi2, 1e-6 * chi2);
+}
+
+TEST(LoopClosurePairs, OdometryStoredBackwardsAndAChainGrownStepByStepGiveTheSameCycles) {
+  Corridor c = corridor(false);
+  // The same corridor with its odometry from 12 to 13 and 20 to 21 stored the other way round.
+  PoseGraph flipped;
+  for (const Node& node : c.graph.nodes()) flipped.addNode(node.id, node.pose);
+  for (const Constraint& k : c.graph.constraints()) {
+    Constraint m = k;
+    if (k.from == 12 || k.from == 20) {
+      std::swap(m.from, m.to);
+      m.measurement = k.measurement.inverse();
+      // The covariance carried to the other end (first order, and in g2o's units, so the cycles
+      // below agree to ~1e-5, not to rounding).
+      const Matrix6 ad = adjoint(k.measurement);
+      m.information = (ad * k.information.inverse() * ad.transpose()).inverse();
+    }
+    flipped.addConstraint(m);
+  }
+  const Constraint right{15, 25,
+                         relativePose(c.truth[15], c.truth[25]) * Pose3::fromRollPitchYaw(0.3, 0, 0, 0, 0, 0),
+                         informationOf(0.1, 0.05), ConstraintKind::kLoopClosure};
+  const Constraint other{11, 29, relativePose(c.truth[11], c.truth[29]), informationOf(0.1, 0.05),
+                         ConstraintKind::kLoopClosure};
+  const std::size_t a = c.graph.addConstraint(right), b = c.graph.addConstraint(other);
+  ASSERT_EQ(flipped.addConstraint(right), a);
+  ASSERT_EQ(flipped.addConstraint(other), b);
+  const OdometryChain forward(c.graph, {}, false);
+  OdometryChain grown(false);
+  for (std::size_t step : odometrySteps(flipped, {})) grown.append(flipped, step);
+  EXPECT_TRUE(grown.reversed(13));
+  EXPECT_FALSE(grown.reversed(14));
+  const double expected = loopClosurePairChi2(c.graph, forward, a, b);
+  EXPECT_GT(expected, 1.5);  // 0.3 m off: something to compare
+  EXPECT_NEAR(loopClosurePairChi2(flipped, grown, a, b), expected, 1e-4 * expected);
+  EXPECT_NEAR(loopClosurePairChi2(flipped, OdometryChain(flipped, {}, false), a, b), expected,
+              1e-4 * expected);
 }
 
 TEST(LoopClosurePairs, ChiSquareDistributedForRightOnesWithNoise) {
@@ -101,7 +138,7 @@ TEST(LoopClosurePairs, ChiSquareDistributedForRightOnesWithNoise) {
                                                   informationOf(0.1, 0.05), ConstraintKind::kLoopClosure});
     const std::size_t b = c.graph.addConstraint({17, 23, relativePose(c.truth[17], c.truth[23]) * noise(0.1, 0.05),
                                                   informationOf(0.1, 0.05), ConstraintKind::kLoopClosure});
-    sum += loopClosurePairChi2(c.graph, odometrySteps(c.graph, {}), a, b, false);
+    sum += loopClosurePairChi2(c.graph, OdometryChain(c.graph, {}, false), a, b);
   }
   // Mean 6 (roll-pitch-yaw noise is close to the rotation vector's at these angles).
   EXPECT_NEAR(sum / runs, 6.0, 1.0);
@@ -112,27 +149,29 @@ TEST(LoopClosurePairs, PlanarUsesXYAndYawAndAGapInTheOdometryCannotBeTested) {
   c.graph.setDimension(GraphDimension::k2D);
   const std::size_t right = addLoopClosure(c, 15, 25);
   const std::size_t wrong = addLoopClosure(c, 16, 24, Pose3::fromRollPitchYaw(0, 0, 0, 0, 0, 0.5));
-  std::vector<std::size_t> steps = odometrySteps(c.graph, {});
-  const double chi2 = loopClosurePairChi2(c.graph, steps, right, wrong, true);
+  const double chi2 = loopClosurePairChi2(c.graph, OdometryChain(c.graph, {}, true), right, wrong);
   // 0.5 rad against 0.05 rad on each loop closure: ~ 0.5^2 / (2 * 0.05^2) = 50, plus the lever
   // arm the yaw error gives the translation.
   EXPECT_GT(chi2, 40.0);
-  EXPECT_NEAR(loopClosurePairChi2(c.graph, steps, right, addLoopClosure(c, 14, 26), true), 0.0, 1e-9);
-  steps = odometrySteps(c.graph, {});
-  steps[16] = kNoOdometry;  // the odometry between 15 and 16 is missing
-  EXPECT_EQ(loopClosurePairChi2(c.graph, steps, right, wrong, true), -1.0);
+  const std::size_t neighbour = addLoopClosure(c, 14, 26);
+  EXPECT_NEAR(loopClosurePairChi2(c.graph, OdometryChain(c.graph, {}, true), right, neighbour), 0.0, 1e-9);
+  OdometryChain gap(true);
+  const std::vector<std::size_t> steps = odometrySteps(c.graph, {});
+  for (std::size_t v = 0; v < steps.size(); ++v) gap.append(c.graph, v == 16 ? kNoOdometry : steps[v]);
+  // The odometry between 15 and 16 is missing.
+  EXPECT_EQ(loopClosurePairChi2(c.graph, gap, right, wrong), -1.0);
 }
 
 TEST(LoopClosurePairs, OdometryDecidesNearbyLoopClosures) {
   Corridor c = corridor(false);
   const std::size_t right = addLoopClosure(c, 18, 22);
   const std::size_t wrong = addLoopClosure(c, 10, 13, Pose3::fromRollPitchYaw(-3.0, 0, 0, 0, 0, 0));  // "same place"
-  const std::vector<std::size_t> steps = odometrySteps(c.graph, {});
-  EXPECT_NEAR(loopClosureOdometryChi2(c.graph, steps, right, false), 0.0, 1e-9);
-  EXPECT_GT(loopClosureOdometryChi2(c.graph, steps, wrong, false), 300.0);
+  const OdometryChain odometry(c.graph, {}, false);
+  EXPECT_NEAR(loopClosureOdometryChi2(c.graph, odometry, right), 0.0, 1e-9);
+  EXPECT_GT(loopClosureOdometryChi2(c.graph, odometry, wrong), 300.0);
   // The flags say what is odometry: with every constraint a loop closure nothing connects them.
   const std::vector<bool> all_loop_closures(c.graph.numConstraints(), true);
-  EXPECT_EQ(loopClosureOdometryChi2(c.graph, odometrySteps(c.graph, all_loop_closures), right, false), -1.0);
+  EXPECT_EQ(loopClosureOdometryChi2(c.graph, OdometryChain(c.graph, all_loop_closures, false), right), -1.0);
 }
 
 TEST(LoopClosurePairs, ChainThroughAnAcceptedLoopClosureIsStifferThanTheOdometry) {
@@ -151,7 +190,7 @@ TEST(LoopClosurePairs, ChainThroughAnAcceptedLoopClosureIsStifferThanTheOdometry
   for (std::size_t k = 10; k < 30; ++k) odometry.push_back({k, 1.0});
   const double along_odometry = loopClosureChainChi2(c.graph, claim, odometry, false);
   // The odometry chain equals the odometry test; the shorter chain contradicts the claim more.
-  EXPECT_NEAR(along_odometry, loopClosureOdometryChi2(c.graph, odometrySteps(c.graph, {}), claim, false),
+  EXPECT_NEAR(along_odometry, loopClosureOdometryChi2(c.graph, OdometryChain(c.graph, {}, false), claim),
               1e-9 * along_odometry);
   EXPECT_GT(through_loop_closure, 1.5 * along_odometry);
   // A right claim agrees with either chain; a weight below 1 widens a link (less contradiction).

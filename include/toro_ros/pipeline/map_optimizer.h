@@ -192,7 +192,7 @@ class MapOptimizer {
                         double gate_threshold);
 
   const toro::PoseGraph& graph() const { return optimizer_.graph(); }
-  // The information of the odometry step between consecutive keyframes a and b (odometrySteps),
+  // The information of the odometry step between consecutive keyframes a and b (odometry()),
   // or nullopt.
   std::optional<toro::Matrix6> odometryInformation(toro::NodeId a, toro::NodeId b);
   // Brings `builder` (the owner's snapshot keyframes and edges; records[i] is graph node i) up to
@@ -324,7 +324,7 @@ class MapOptimizer {
   // release threshold, scaled by the map's variance factor).  The caller adds the path's verdict.
   bool witnessedAcrossSpan(std::size_t c, double pair_threshold);
   bool leftToInnovation(std::size_t c);
-  const std::vector<std::size_t>& odometrySteps();
+  const toro::OdometryChain& odometry();
   // last_chi2_ and weighted_chi2_ from the current poses and weights.
   void updateChi2();
 
@@ -342,7 +342,7 @@ class MapOptimizer {
   // The chi2 with each loop closure's information scaled by its weight (those below the finish's
   // set-aside weight left out): what a finish minimises, so what the tolerance compares.
   double weighted_chi2_;
-  std::vector<std::size_t> odometry_steps_;  // per node: toro::odometrySteps, grown lazily
+  toro::OdometryChain odometry_;  // per node: its odometry step (toro::odometrySteps), grown lazily
   // mapPathVerdict's scratch (the tree path's nodes and links), kept to spare an allocation a call.
   std::vector<std::size_t> path_up_, path_down_;
   std::vector<toro::ChainLink> path_links_;
