@@ -118,16 +118,22 @@ void OfflineRunner::drainSchedule(double stamp_sec, OfflineRun* run) {
     run->curve.push_back(
         CurvePoint{run->curve.size() + 1, stamp_sec, s.keyframes, s.constraints, s.last_chi2, false});
   };
-  // As the node's worker: after the input, run passes until nothing is due...
-  do {
-    const auto t0 = Clock::now();
-    if (!pipeline_->runScheduledOptimization()) break;
-    run->optimization_sec += since(t0);
-    record();
-  } while (pipeline_->hasScheduledWork());
-  // ...and a background finish where the node would start one, run inline and merged at once, so
-  // the run is deterministic (the node merges it when its thread is done, a little later).
-  if (std::optional<FinishJob> job = pipeline_->takeFinishJob()) {
+  // As the node's worker: after the input, run passes until nothing is due, and a background
+  // finish where the node would start one, run inline and merged at once, so the run is
+  // deterministic (the node merges it when its thread is done, a little later).  After a merge the
+  // worker looks again at once, and a finish that may follow at once (one released held loop
+  // closures: MapOptimizer::takeFinishJob) starts there; at most kFinishesPerMessage here, as a
+  // bound (each follow-up needs a release by the one before).
+  constexpr int kFinishesPerMessage = 4;
+  for (int k = 0; k < kFinishesPerMessage; ++k) {
+    do {
+      const auto t0 = Clock::now();
+      if (!pipeline_->runScheduledOptimization()) break;
+      run->optimization_sec += since(t0);
+      record();
+    } while (pipeline_->hasScheduledWork());
+    std::optional<FinishJob> job = pipeline_->takeFinishJob();
+    if (!job) break;
     const auto t0 = Clock::now();
     pipeline_->mergeFinish(runFinishJob(std::move(*job)));
     run->optimization_sec += since(t0);

@@ -248,26 +248,34 @@ TEST(BackgroundFinish, DefaultScheduleAQuarterSecondWhileTheMapMovesASecondToTes
 // A loop closure that closes a large loop alone has no neighbour to agree with it, so the support
 // holds it; the finished map, whose uncertainty between its ends it is measured against, releases
 // a right one and keeps a wrong one held.
+// Two laps of the drifting square: a first revisit reported keyframe by keyframe (its loop
+// closures support each other) at lap 2's first side, its finish merged, then 12.5 s later a lone
+// loop closure halfway along the third side back to lap 1, its measurement times `error`.
+// Returns how many loop closures had been held before the lone one.
+std::uint64_t loneLoopClosureAfterAFinishedRevisit(Pipeline& p, const DriftScenario& sc,
+                                                   const toro::Pose3& error) {
+  const std::size_t revisit = 225, lone_at = 350;
+  feed(p, sc, 0, revisit + 1);
+  for (const LoopClosure& lc : testing::revisitLoopClosures(sc, 25, revisit)) p.handleLoopClosure(lc);
+  drain(p);
+  std::optional<FinishJob> first = p.takeFinishJob();
+  EXPECT_TRUE(first && p.mergeFinish(runFinishJob(std::move(*first))));
+  feed(p, sc, revisit + 1, lone_at + 1);
+  const std::uint64_t held = p.counters().loop_closures_held;
+  LoopClosure lone = trueLoopClosure(sc, lone_at - 200, lone_at);
+  lone.from_T_to = poseToMsg(poseFromMsg(lone.from_T_to) * error);
+  p.handleLoopClosure(lone);
+  drain(p);
+  return held;
+}
+
 TEST(BackgroundFinish, ALoneRightLoopClosureIsReleasedByTheFinishedMapAndAWrongOneIsNot) {
   const DriftScenario sc = makeDriftingSquare(2);
-  const std::size_t revisit = 225;  // lap 2, a quarter of the first side in
-  const std::size_t lone_at = 350;  // lap 2, halfway along the third side
   const auto run = [&](const toro::Pose3& error) {
     PipelineOptions o = finishOptions();
     o.optimization.hold_until_supported = true;  // the node's default (the test options turn it off)
     Pipeline p(o);
-    feed(p, sc, 0, revisit + 1);
-    // A first revisit, reported keyframe by keyframe: its loop closures support each other.
-    for (const LoopClosure& lc : testing::revisitLoopClosures(sc, 25, revisit)) p.handleLoopClosure(lc);
-    drain(p);
-    std::optional<FinishJob> first = p.takeFinishJob();
-    EXPECT_TRUE(first && p.mergeFinish(runFinishJob(std::move(*first))));
-    feed(p, sc, revisit + 1, lone_at + 1);
-    const std::uint64_t held = p.counters().loop_closures_held;
-    LoopClosure lone = trueLoopClosure(sc, lone_at - 200, lone_at);
-    lone.from_T_to = poseToMsg(poseFromMsg(lone.from_T_to) * error);
-    p.handleLoopClosure(lone);
-    drain(p);
+    const std::uint64_t held = loneLoopClosureAfterAFinishedRevisit(p, sc, error);
     EXPECT_EQ(p.counters().loop_closures_held, held + 1);  // nothing near it agrees: held
     std::optional<FinishJob> job = p.takeFinishJob();
     EXPECT_TRUE(job);
@@ -282,6 +290,31 @@ TEST(BackgroundFinish, ALoneRightLoopClosureIsReleasedByTheFinishedMapAndAWrongO
   };
   EXPECT_EQ(run(toro::Pose3()), 1u);
   EXPECT_EQ(run(toro::Pose3::fromRollPitchYaw(1.5, -1.0, 0, 0, 0, 0.3)), 0u);  // 1.8 m and 17 degrees off
+}
+
+// A finish that releases a held loop closure leaves the map off the optimum by it (its affected
+// pass is no finish): the next finish follows at once, whatever the interval.  One that releases
+// nothing waits for the interval as usual.
+TEST(BackgroundFinish, AFinishThatReleasesAHeldLoopClosureIsFollowedAtOnce) {
+  const DriftScenario sc = makeDriftingSquare(2);
+  const auto followed_at_once = [&](const toro::Pose3& error) {
+    PipelineOptions o = finishOptions();
+    o.optimization.hold_until_supported = true;
+    o.optimization.finish_min_interval_sec = 5.0;
+    Pipeline p(o);
+    loneLoopClosureAfterAFinishedRevisit(p, sc, error);  // 12.5 s after the first finish
+    std::optional<FinishJob> job = p.takeFinishJob();    // tests the held one
+    EXPECT_TRUE(job);
+    if (!job) return false;
+    EXPECT_TRUE(p.mergeFinish(runFinishJob(std::move(*job))));
+    const bool released = p.counters().loop_closures_released_predicted > 0;
+    drain(p);
+    const bool followed = p.takeFinishJob().has_value();  // at the same stamp: within the 5 s
+    EXPECT_EQ(followed, released);
+    return followed;
+  };
+  EXPECT_TRUE(followed_at_once(toro::Pose3()));
+  EXPECT_FALSE(followed_at_once(toro::Pose3::fromRollPitchYaw(1.5, -1.0, 0, 0, 0, 0.3)));  // held: no hurry
 }
 
 // Laps 2 and 3 revisit lap 1's second side, a loop closure every half metre.  Lap 3's arrive

@@ -395,6 +395,7 @@ class MapOptimizer {
   std::uint64_t innovation_round_ = 0;     // innovation test batches so far
   double innovation_tested_weight_ = 0.0;  // loopClosureWeight at the last batch
   bool held_since_finish_ = false;         // a loop closure was held since the last finish was taken
+  bool finish_after_release_ = false;      // the last merge released held loop closures (takeFinishJob)
   bool from_scratch_due_ = false;          // FinishJob::from_scratch for the next job
   // The gate's candidate: the optimiser as it was before it, its constraint index and stamp.
   std::optional<toro::TreeOptimizer> before_gate_;
