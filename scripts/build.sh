@@ -3,7 +3,8 @@
 #
 # Environment: TORO_BUILD_DIR (build directory, relative to the repo root or absolute; default build),
 # TORO_JOBS (parallel jobs, default 2), TORO_BUILD_TYPE (default Release),
-# TORO_BUILD_TARGETS (space-separated, default "all tests"; e.g. "bench_toro" for the benchmark only).
+# TORO_BUILD_TARGETS (space-separated, default "all tests"; e.g. "bench_toro" for the benchmark only),
+# TORO_SKIP_INSTALL=1 (do not run scripts/install_deps.sh first).
 set -euo pipefail
 
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -53,6 +54,11 @@ configure() {
 }
 
 main() {
+  # On a fresh machine CMake would stop at "could not find catkin"; install what is missing first,
+  # as demo.sh and test.sh do (quick when everything is there).  TORO_SKIP_INSTALL=1 skips it.
+  if [[ "${TORO_SKIP_INSTALL:-0}" != 1 ]]; then
+    bash "${REPO_ROOT}/scripts/install_deps.sh" </dev/null
+  fi
   cleanDevelEnvironment
   echo "build.sh: configuring ${REPO_ROOT} into ${BUILD_DIR} (${BUILD_TYPE})"
   configure
