@@ -381,6 +381,19 @@ void MapOptimizer::addKeyframe(toro::NodeId id, const toro::Pose3& pose, const r
   if (!odometry) return;
   optimizer_.addConstraint(*odometry);  // endpoints exist and the information is SPD by construction
   is_loop_closure_.push_back(false);
+  notePlanarity(*odometry);
+}
+
+void MapOptimizer::notePlanarity(const toro::Constraint& constraint) {
+  // Exactly planar input (a 2D odometry's z, roll and pitch are zero, not small) keeps every pose's
+  // error on those axes zero; any measured departure is a 3D robot's.
+  constexpr double kPlanarTolerance = 1e-9;
+  const toro::Pose3& m = constraint.measurement;
+  const toro::Matrix3 r = m.rotationMatrix();
+  if (std::abs(m.translation().z()) > kPlanarTolerance || std::abs(r(2, 0)) > kPlanarTolerance ||
+      std::abs(r(2, 1)) > kPlanarTolerance || std::abs(r(0, 2)) > kPlanarTolerance ||
+      std::abs(r(1, 2)) > kPlanarTolerance)
+    planar_measurements_ = false;
 }
 
 std::string MapOptimizer::addLoopClosure(const toro::Constraint& loop_closure, const ros::Time& message_stamp) {
@@ -395,6 +408,7 @@ std::string MapOptimizer::addLoopClosure(const toro::Constraint& loop_closure, c
     return e.what();
   }
   is_loop_closure_.push_back(true);
+  notePlanarity(loop_closure);
   ++revision_;
   ++counters_->loop_closures_applied;
   const bool was_pending = affected_pending_, was_due = finish_due_;
@@ -419,7 +433,7 @@ std::string MapOptimizer::addLoopClosure(const toro::Constraint& loop_closure, c
 // ---- support ----------------------------------------------------------------------------------
 
 double MapOptimizer::innovationThreshold(const FinishOutcome& outcome) const {
-  const double dof = planar_ ? 3.0 : 6.0;
+  const double dof = this->dof();
   if (!(outcome.loop_closure_weight >= kMinLoopClosuresForScale)) return -1.0;
   // The a-posteriori variance factor: the finished chi2 over its redundancy (each loop closure
   // counted adds dof equations beyond the odometry chain's).
@@ -428,7 +442,7 @@ double MapOptimizer::innovationThreshold(const FinishOutcome& outcome) const {
 }
 
 double MapOptimizer::supportThreshold() const {
-  const double dof = planar_ ? 3.0 : 6.0;
+  const double dof = this->dof();
   const double quantile = toro::chiSquareQuantile(kSupportConfidence, dof);
   // samples() <= count(): cycles closed to rounding are counted but are no sample of the scale.
   if (tested_pairs_.samples() < kMinPairsToAdaptSupport) return quantile;
@@ -620,7 +634,7 @@ double MapOptimizer::mapPathChi2(std::size_t c) {
 }
 
 double MapOptimizer::mapPathThreshold(bool through_loop_closure) const {
-  const double dof = planar_ ? 3.0 : 6.0;
+  const double dof = this->dof();
   const RecentChi2& tested = through_loop_closure ? tested_paths_ : tested_odometry_paths_;
   const double lenience = through_loop_closure ? kPathLenience : kOdometryPathLenience;
   const double declared = lenience * toro::chiSquareQuantile(kSupportConfidence, dof);
@@ -646,9 +660,7 @@ std::size_t MapOptimizer::span(std::size_t c) const {
   return a > b ? a - b : b - a;
 }
 
-double MapOptimizer::declaredQuantile() const {
-  return toro::chiSquareQuantile(kSupportConfidence, planar_ ? 3.0 : 6.0);
-}
+double MapOptimizer::declaredQuantile() const { return toro::chiSquareQuantile(kSupportConfidence, dof()); }
 
 int MapOptimizer::mapPathVerdict(std::size_t c, bool record) {
   const double path = mapPathChi2(c);
@@ -1280,6 +1292,7 @@ void MapOptimizer::replaceGraph(const toro::PoseGraph& graph, const std::vector<
   // Replayed through the online path (addNode/addConstraint keep the given poses, as kFromGraph
   // would) rather than setGraph: that is the path every live keyframe takes.
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
+  planar_measurements_ = true;
   for (const toro::Node& n : graph.nodes()) optimizer_.addNode(n.id, n.pose);
   for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
     toro::Constraint k = graph.constraints()[c];
@@ -1287,6 +1300,7 @@ void MapOptimizer::replaceGraph(const toro::PoseGraph& graph, const std::vector<
                                                                 : toro::ConstraintKind::kOdometry;
     const bool held = c < caps.size() && caps[c] < 1.0;
     optimizer_.addConstraint(k, !held);
+    notePlanarity(k);
     if (held) optimizer_.setWeightCap(c, caps[c]);
   }
   optimizer_.clearAffected();
@@ -1301,6 +1315,7 @@ void MapOptimizer::clear() {
   robust_width_ = robust_.width;
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
   is_loop_closure_.clear();
+  planar_measurements_ = true;
   before_gate_.reset();
   rejected_.clear();
   affected_pending_ = false;
