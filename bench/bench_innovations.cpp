@@ -52,17 +52,6 @@ double quantile(std::vector<double> v, double p) {
   return v[i] + (x - static_cast<double>(i)) * (v[j] - v[i]);
 }
 
-// The graph without constraint `left_out`, its poses and fixed nodes kept.
-PoseGraph without(const PoseGraph& graph, std::size_t left_out) {
-  PoseGraph kept;
-  kept.setDimension(graph.dimension());
-  for (const Node& n : graph.nodes()) kept.addNode(n.id, n.pose);
-  for (NodeId id : graph.fixedNodes()) kept.addFixed(id);
-  for (std::size_t c = 0; c < graph.numConstraints(); ++c)
-    if (c != left_out) kept.addConstraint(graph.constraints()[c]);
-  return kept;
-}
-
 void runDataset(const std::string& dir, const std::string& file, std::size_t stride) {
   const Clock::time_point start = Clock::now();
   const double cpu_start = toro_bench::cpuSeconds();
@@ -83,7 +72,7 @@ void runDataset(const std::string& dir, const std::string& file, std::size_t str
   const LevenbergMarquardt finish(options);
   std::vector<double> normalised;
   for (std::size_t k = 0; k < loop_closures.size(); k += stride) {
-    PoseGraph rest = without(graph, loop_closures[k]);
+    PoseGraph rest = keepConstraints(graph, [&](std::size_t c) { return c != loop_closures[k]; });
     const FinishReport r = finish.optimize(rest, {}, {graph.constraints()[loop_closures[k]]});
     if (r.innovation_chi2.empty() || !(r.innovation_chi2[0] >= 0.0)) continue;
     normalised.push_back(r.innovation_chi2[0] / variance_factor);

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <array>
 #include <memory>
@@ -68,6 +69,10 @@ class FinishProblem {
   static constexpr int D = Model::kDim;
   // Entries of the dense right-hand side of one innovation solve at most (32 MB).
   static constexpr std::size_t kMaxInnovationRhs = std::size_t{1} << 22;
+  // A constraint in the problem gives no leave-one-out innovation when the rest of the graph
+  // contributes less than this share of what H knows along some direction of its error (removing
+  // it would leave that direction free, and the difference Sigma_w - J H^-1 J^T loses the digits).
+  static constexpr double kMinShareOfTheRest = 1e-9;
   using State = typename Model::State;
   using Vec = typename Model::Vec;
   using Mat = typename Model::Mat;
@@ -191,7 +196,17 @@ class FinishProblem {
   // when the candidate is added, chi-square distributed for a right one.  -1 for a candidate
   // whose ends are not both nodes, and for all when H cannot be factorised.  Costs one
   // factorisation and one solve with D right-hand-side columns per candidate, solved together.
-  std::vector<double> innovationChi2(const PoseGraph& graph, const std::vector<Constraint>& candidates);
+  // `included`: constraints the problem holds (the result follows the candidates', in their
+  // order): their leave-one-out innovation, the statistic a candidate gets, against its own
+  // information (the graph's over IncludedConstraint::weight), from the problem with it at weight
+  // w in H (that weight times a robust kernel's).  Whitened by w's information (W^T W = w Omega):
+  // with A = W J H^-1 J^T W^T = V (I - L) V^T (L the share of the rest of the graph per direction,
+  // in [0, 1]) and f = V^T W e, it is sum_i f_i^2 / (l_i (1 - (1 - w) l_i)); at w = 1
+  // e^T (Sigma_z - J H^-1 J^T)^-1 e.  In a linear-Gaussian model that is exactly the innovation
+  // against the optimum without it.  -1 for one set aside, and for one that nothing else
+  // constrains along a direction (l_i ~ 0: removing it leaves its ends free there).
+  std::vector<double> innovationChi2(const PoseGraph& graph, const std::vector<Constraint>& candidates,
+                                     const std::vector<IncludedConstraint>& included = {});
 
   std::vector<State> retracted(const Eigen::VectorXd& step) const {
     std::vector<State> out = states_;
@@ -557,9 +572,10 @@ bool FinishProblem<Model>::refineWithSetAside(const Eigen::VectorXd& rhs, double
 
 template <class Model>
 std::vector<double> FinishProblem<Model>::innovationChi2(const PoseGraph& graph,
-                                                         const std::vector<Constraint>& candidates) {
-  std::vector<double> out(candidates.size(), -1.0);
-  if (candidates.empty() || b_.size() == 0) return out;
+                                                         const std::vector<Constraint>& candidates,
+                                                         const std::vector<IncludedConstraint>& included) {
+  std::vector<double> out(candidates.size() + included.size(), -1.0);
+  if (out.empty() || b_.size() == 0) return out;
   ensureHessian();
   // Undamped first; a Hessian at the edge of definiteness (a node held by one weak constraint)
   // takes the least damping that factorises, which only narrows the predicted spread a little.
@@ -579,7 +595,10 @@ std::vector<double> FinishProblem<Model>::innovationChi2(const PoseGraph& graph,
     std::size_t k;
     int bi, bj;
     typename Model::Lin lin;
-    Mat covariance;
+    Mat covariance;       // left out: Sigma_z
+    Mat whitening;        // included: W with W^T W its information in H (its weight times its own)
+    double weight = 1.0;  // included: that weight
+    bool included = false;
   };
   std::vector<Candidate> usable;
   for (std::size_t k = 0; k < candidates.size(); ++k) {
@@ -596,6 +615,29 @@ std::vector<double> FinishProblem<Model>::innovationChi2(const PoseGraph& graph,
       continue;
     u.covariance = Model::informationOf(information).inverse();
     usable.push_back(u);
+  }
+  if (!included.empty()) {
+    std::vector<std::size_t> edge_of(graph.numConstraints(), edges_.size());
+    for (std::size_t e = 0; e < edges_.size(); ++e)
+      if (edges_[e].index < edge_of.size()) edge_of[edges_[e].index] = e;
+    for (std::size_t k = 0; k < included.size(); ++k) {
+      const std::size_t c = included[k].index;
+      if (c >= edge_of.size() || edge_of[c] == edges_.size()) continue;  // set aside
+      const Edge& e = edges_[edge_of[c]];
+      Candidate u;
+      u.k = candidates.size() + k;
+      u.included = true;
+      u.bi = e.bi;
+      u.bj = e.bj;
+      Model::linearize(states_[e.i], states_[e.j], e.z, &u.lin);
+      const double kernel =
+          e.robust ? robustWeight(robust_, u.lin.error.dot(e.information * u.lin.error)) : 1.0;
+      u.weight = kernel * included[k].weight;
+      const Eigen::LLT<Mat> llt(kernel * e.information);
+      if (!(u.weight > 0.0 && u.weight <= 1.0) || llt.info() != Eigen::Success) continue;
+      u.whitening = llt.matrixL().transpose();
+      usable.push_back(u);
+    }
   }
   const std::size_t rows = static_cast<std::size_t>(b_.size());
   const std::size_t per_batch = std::max<std::size_t>(1, kMaxInnovationRhs / (rows * D));
@@ -626,10 +668,24 @@ std::vector<double> FinishProblem<Model>::innovationChi2(const PoseGraph& graph,
         if (u.bj >= 0) spread += u.lin.d_to * y.block(u.bj * D, col, D, D);
         spread = (0.5 * (spread + spread.transpose())).eval();
       }
-      const Mat s = u.covariance + spread;
-      const Eigen::LDLT<Mat> ldlt(s);
-      if (ldlt.info() != Eigen::Success) continue;
-      const double chi2 = u.lin.error.dot(ldlt.solve(u.lin.error));
+      double chi2 = -1.0;
+      if (u.included) {
+        // See the declaration: l = eigenvalues of I - A.  Why it holds, in W's units (where its
+        // covariance in H is I and its own w I): the rest of the graph predicts its error with
+        // covariance C = A (I - A)^-1 (Woodbury), its error left out is (I + C) W e, and the
+        // innovation weighs that by (w I + C)^-1.
+        const Mat a = u.whitening * spread * u.whitening.transpose();
+        const Eigen::SelfAdjointEigenSolver<Mat> eigen(Mat::Identity() - 0.5 * (a + a.transpose()));
+        if (eigen.info() != Eigen::Success || !(eigen.eigenvalues().minCoeff() > kMinShareOfTheRest))
+          continue;
+        const typename Model::Vec f = eigen.eigenvectors().transpose() * (u.whitening * u.lin.error);
+        const auto& l = eigen.eigenvalues().array();
+        chi2 = (f.array().square() / (l * (1.0 - (1.0 - u.weight) * l))).sum();
+      } else {
+        const Eigen::LDLT<Mat> ldlt(u.covariance + spread);
+        if (ldlt.info() != Eigen::Success) continue;
+        chi2 = u.lin.error.dot(ldlt.solve(u.lin.error));
+      }
       if (std::isfinite(chi2) && chi2 >= 0.0) out[u.k] = chi2;
     }
   }

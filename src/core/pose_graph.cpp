@@ -102,6 +102,11 @@ void PoseGraph::scaleInformation(std::size_t c, double factor) {
   constraints_[c].information *= factor;
 }
 
+void PoseGraph::setKind(std::size_t c, ConstraintKind kind) {
+  if (c >= constraints_.size()) throw GraphError("no constraint " + std::to_string(c));
+  constraints_[c].kind = kind;
+}
+
 std::size_t PoseGraph::indexOf(NodeId id) const {
   const auto it = index_.find(id);
   if (it == index_.end()) throw GraphError("unknown node " + std::to_string(id));
@@ -114,6 +119,16 @@ void PoseGraph::clear() {
   index_.clear();
   fixed_.clear();
   dimension_ = GraphDimension::k3D;
+}
+
+PoseGraph keepConstraints(const PoseGraph& graph, const std::function<bool(std::size_t)>& keep) {
+  PoseGraph kept;
+  kept.setDimension(graph.dimension());
+  for (const Node& n : graph.nodes()) kept.addNode(n.id, n.pose);
+  for (NodeId id : graph.fixedNodes()) kept.addFixed(id);
+  for (std::size_t c = 0; c < graph.numConstraints(); ++c)
+    if (keep(c)) kept.addConstraint(graph.constraints()[c]);
+  return kept;
 }
 
 }  // namespace toro

@@ -67,15 +67,13 @@ double odometryConsistencyThreshold(const PoseGraph& graph) {
 // `gaussian` marks, if given, counted as odometry: plain least squares in a robust finish.
 PoseGraph graphWithout(const PoseGraph& graph, const std::vector<char>& left_out,
                        const std::vector<char>* gaussian = nullptr) {
-  PoseGraph kept;
-  kept.setDimension(graph.dimension());
-  for (const Node& n : graph.nodes()) kept.addNode(n.id, n.pose);
-  for (NodeId id : graph.fixedNodes()) kept.addFixed(id);
+  PoseGraph kept = keepConstraints(graph, [&](std::size_t c) { return !left_out[c]; });
+  if (!gaussian) return kept;
+  std::size_t k = 0;  // c's index in `kept`
   for (std::size_t c = 0; c < graph.numConstraints(); ++c) {
     if (left_out[c]) continue;
-    Constraint k = graph.constraints()[c];
-    if (gaussian && (*gaussian)[c]) k.kind = ConstraintKind::kOdometry;
-    kept.addConstraint(k);
+    if ((*gaussian)[c]) kept.setKind(k, ConstraintKind::kOdometry);
+    ++k;
   }
   return kept;
 }

@@ -81,7 +81,8 @@ class LmRun {
         end_when_regained_(end_when_regained) {}
 
   FinishReport run(PoseGraph& graph, const FinishCallback& callback,
-                   const std::vector<Constraint>& candidates);
+                   const std::vector<Constraint>& candidates,
+                   const std::vector<IncludedConstraint>& included);
 
  private:
   // Solves for and tries one step; fills `it` and updates the state and report.stop.
@@ -101,7 +102,8 @@ class LmRun {
 
 template <class Model>
 FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback,
-                               const std::vector<Constraint>& candidates) {
+                               const std::vector<Constraint>& candidates,
+                               const std::vector<IncludedConstraint>& included) {
   report_.held_nodes = problem_.numHeld();
   report_.set_aside = problem_.numSetAside();
   report_.repaired_information = problem_.repairedInformation();
@@ -127,7 +129,11 @@ FinishReport LmRun<Model>::run(PoseGraph& graph, const FinishCallback& callback,
     if (callback) callback(it);
   }
   problem_.writeBack(graph);
-  report_.innovation_chi2 = problem_.innovationChi2(graph, candidates);
+  std::vector<double> innovations = problem_.innovationChi2(graph, candidates, included);
+  report_.included_innovation_chi2.assign(
+      innovations.begin() + static_cast<std::ptrdiff_t>(candidates.size()), innovations.end());
+  innovations.resize(candidates.size());
+  report_.innovation_chi2 = std::move(innovations);
   report_.final_objective = chi2_;
   if (options_.robust.enabled()) {
     report_.final_chi2 = problem_.plainChi2(&report_.weights);
@@ -278,12 +284,13 @@ namespace {
 // (FinishProblem::setAsideTooStiff), at once with every loop closure factorised; one report.
 template <class Model>
 FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const FinishCallback& callback,
-                          const std::vector<Constraint>& candidates) {
+                          const std::vector<Constraint>& candidates,
+                          const std::vector<IncludedConstraint>& included) {
   FinishReport total;
   FinishOptions round_options = options;
   for (std::size_t round = 1;; ++round) {
     LmRun<Model> run(graph, round_options, round < kMaxSetAsideRounds);
-    FinishReport r = run.run(graph, callback, candidates);
+    FinishReport r = run.run(graph, callback, candidates, included);
     if (round == 1) {
       total = r;
     } else {
@@ -291,6 +298,7 @@ FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const 
       total.final_objective = r.final_objective;
       total.weights = std::move(r.weights);
       total.innovation_chi2 = std::move(r.innovation_chi2);
+      total.included_innovation_chi2 = std::move(r.included_innovation_chi2);
       total.iterations += r.iterations;
       total.stop = r.stop;
       total.set_aside = r.set_aside;
@@ -315,10 +323,11 @@ FinishReport optimizeWith(PoseGraph& graph, const FinishOptions& options, const 
 }  // namespace
 
 FinishReport LevenbergMarquardt::optimize(PoseGraph& graph, const FinishCallback& callback,
-                                          const std::vector<Constraint>& candidates) const {
+                                          const std::vector<Constraint>& candidates,
+                                          const std::vector<IncludedConstraint>& included) const {
   if (graph.dimension() == GraphDimension::k2D)
-    return optimizeWith<detail::ModelSE2>(graph, options_, callback, candidates);
-  return optimizeWith<detail::ModelSE3>(graph, options_, callback, candidates);
+    return optimizeWith<detail::ModelSE2>(graph, options_, callback, candidates, included);
+  return optimizeWith<detail::ModelSE3>(graph, options_, callback, candidates, included);
 }
 
 }  // namespace toro

@@ -79,21 +79,18 @@ Pipeline::Pipeline(const PipelineOptions& options, WarningSink warn, InfoSink in
     : options_(validated(options)),
       warn_(std::move(warn)),
       info_(std::move(info)),
-      map_(options.optimization, options.robust, options.planar, gateThresholdFor(options), &counters_,
-           [this](const std::string& category, const std::string& detail) { refuse(category, detail); },
-           [this](const std::string& note) {
-             if (warn_) warn_(note);
-           }),
+      map_(
+          options.optimization, options.robust, options.planar, gateOptionsOf(options), &counters_,
+          [this](const std::string& category, const std::string& detail) { refuse(category, detail); },
+          [this](const std::string& note) {
+            if (warn_) warn_(note);
+          }),
       keyframer_(keyframerOptions(options)),
       matcher_(options.matcher),
       odometry_history_(options.odometry_history_sec) {}
 
-double Pipeline::gateThresholdFor(const PipelineOptions& options) {
-  // A loop closure's residual has 6 components (translation and rotation), 3 in the plane.
-  return options.loop_closure_gate_confidence > 0
-             ? toro::chiSquareQuantile(options.loop_closure_gate_confidence, options.planar ? 3 : 6) *
-                   options.loop_closure_gate_variance_factor
-             : std::numeric_limits<double>::infinity();
+GateOptions Pipeline::gateOptionsOf(const PipelineOptions& options) {
+  return GateOptions{options.loop_closure_gate_confidence, options.loop_closure_gate_variance_factor};
 }
 
 void Pipeline::refuse(const std::string& category, const std::string& detail) {

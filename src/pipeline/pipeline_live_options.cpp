@@ -39,7 +39,7 @@ std::string Pipeline::applyLiveOptions(const PipelineOptions& requested) {
   // The keyframer keeps its reference keyframe and what it learnt of the covariance convention;
   // only its thresholds change.
   keyframer_.setThresholds(next.keyframer.distance_m, next.keyframer.angle_rad, next.keyframer.interval_sec);
-  map_.applyLiveOptions(next.optimization, next.robust, gateThresholdFor(next));
+  map_.applyLiveOptions(next.optimization, next.robust, gateOptionsOf(next));
   options_ = next;
   return "";
 }

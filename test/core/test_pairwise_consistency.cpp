@@ -108,12 +108,10 @@ TEST(PairwiseConsistency, TheScaleIsReadFromTheCyclesAndOnlyNarrows) {
 TEST(PairwiseConsistency, TooFewPairsGiveNoVerdict) {
   // Three loop closures of the revisit: at most three pairs, below kMinPairsForScale.
   Revisit r = revisit(1.0);
-  PoseGraph few;
-  few.setDimension(r.graph.dimension());
-  for (const Node& n : r.graph.nodes()) few.addNode(n.id, n.pose);
   std::size_t loop_closures = 0;
-  for (const Constraint& c : r.graph.constraints())
-    if (!isLoopClosure(c) || ++loop_closures <= 3) few.addConstraint(c);
+  const PoseGraph few = keepConstraints(r.graph, [&](std::size_t c) {
+    return !isLoopClosure(r.graph.constraints()[c]) || ++loop_closures <= 3;
+  });
   const PairwiseConsistency p = pairwiseConsistency(few);
   EXPECT_FALSE(p.scale_learnt);
   EXPECT_DOUBLE_EQ(p.scale, 1.0);

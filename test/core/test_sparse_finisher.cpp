@@ -139,11 +139,8 @@ TEST(SparseFinisher, InnovationOfALeftOutConstraintIsTheRiseOfTheOptimumWhenItIs
     for (unsigned seed : {41u, 42u, 43u}) {
       SCOPED_TRACE((planar ? "2D seed " : "3D seed ") + std::to_string(seed));
       const PoseGraph full = planar ? noisyGraph2D(seed) : noisyGraph3D(seed);
-      PoseGraph without;
-      without.setDimension(full.dimension());
-      for (const Node& n : full.nodes()) without.addNode(n.id, n.pose);
       const std::size_t left_out = full.numConstraints() - 1;  // a chord
-      for (std::size_t c = 0; c < left_out; ++c) without.addConstraint(full.constraints()[c]);
+      PoseGraph without = keepConstraints(full, [&](std::size_t c) { return c != left_out; });
       const Constraint candidate = full.constraints()[left_out];
       Constraint wrong = candidate;
       wrong.measurement =
@@ -165,6 +162,67 @@ TEST(SparseFinisher, InnovationOfALeftOutConstraintIsTheRiseOfTheOptimumWhenItIs
       EXPECT_GT(r.innovation_chi2[1], chiSquareQuantile(0.999, planar ? 3 : 6));  // refused at 0.999
       EXPECT_GT(r.innovation_chi2[1], 10.0 * r.innovation_chi2[0]);
       EXPECT_EQ(r.innovation_chi2[2], -1.0);
+    }
+  }
+}
+
+// The leave-one-out innovation of a constraint in the graph (FinishReport::included_innovation_chi2)
+// is the innovation it would have were it left out: here against the finish of the graph without
+// it, within the linear model's few %.  What nothing else constrains has none to tell (-1); a wrong
+// one in the graph shows it as plainly as when left out.
+TEST(SparseFinisher, LeaveOneOutInnovationOfAnIncludedConstraintIsItsInnovationWhenLeftOut) {
+  for (const bool planar : {false, true}) {
+    for (unsigned seed : {41u, 42u, 43u}) {
+      SCOPED_TRACE((planar ? "2D seed " : "3D seed ") + std::to_string(seed));
+      const PoseGraph full = planar ? noisyGraph2D(seed) : noisyGraph3D(seed);
+      const std::size_t chord = full.numConstraints() - 1;
+      PoseGraph without = keepConstraints(full, [&](std::size_t c) { return c != chord; });
+      const FinishReport left_out =
+          LevenbergMarquardt(tightOptions()).optimize(without, {}, {full.constraints()[chord]});
+      ASSERT_EQ(left_out.innovation_chi2.size(), 1u);
+      ASSERT_GT(left_out.innovation_chi2[0], 0.0);
+      PoseGraph with = full;
+      const FinishReport included =
+          LevenbergMarquardt(tightOptions())
+              .optimize(with, {}, {}, {IncludedConstraint{chord}, IncludedConstraint{0}});
+      ASSERT_EQ(included.included_innovation_chi2.size(), 2u);
+      EXPECT_TRUE(included.innovation_chi2.empty());
+      EXPECT_NEAR(included.included_innovation_chi2[0], left_out.innovation_chi2[0],
+                  0.05 * left_out.innovation_chi2[0]);
+      // The first odometry step (node 0 -> 1) is a chain link some chord bypasses: told.
+      EXPECT_GE(included.included_innovation_chi2[1], 0.0);
+      // In the graph at a quarter of its information (a robust weight the caller applied): still
+      // against its own information, so the same value.
+      PoseGraph weighted = full;
+      weighted.scaleInformation(chord, 0.25);
+      const double at_a_quarter = LevenbergMarquardt(tightOptions())
+                                      .optimize(weighted, {}, {}, {IncludedConstraint{chord, 0.25}})
+                                      .included_innovation_chi2[0];
+      EXPECT_NEAR(at_a_quarter, left_out.innovation_chi2[0], 0.05 * left_out.innovation_chi2[0]);
+
+      // Odometry only: every step is all that holds its `to` node.
+      PoseGraph chain =
+          keepConstraints(full, [&](std::size_t c) { return !isLoopClosure(full.constraints()[c]); });
+      const FinishReport bridges =
+          LevenbergMarquardt(tightOptions())
+              .optimize(chain, {}, {}, {IncludedConstraint{0}, IncludedConstraint{1}});
+      ASSERT_EQ(bridges.included_innovation_chi2.size(), 2u);
+      EXPECT_EQ(bridges.included_innovation_chi2[0], -1.0);
+      EXPECT_EQ(bridges.included_innovation_chi2[1], -1.0);
+
+      // 8 m off, in the graph: its leave-one-out innovation refuses it as the left-out test does.
+      PoseGraph wrong_in = without;
+      Constraint wrong = full.constraints()[chord];
+      wrong.measurement = wrong.measurement * Pose3::fromRollPitchYaw(6.0, -5.0, 0, 0, 0, 0.8);
+      const std::size_t w = wrong_in.addConstraint(wrong);
+      PoseGraph wrong_out = without;
+      const double expected =
+          LevenbergMarquardt(tightOptions()).optimize(wrong_out, {}, {wrong}).innovation_chi2[0];
+      const double told = LevenbergMarquardt(tightOptions())
+                              .optimize(wrong_in, {}, {}, {IncludedConstraint{w}})
+                              .included_innovation_chi2[0];
+      EXPECT_GT(told, chiSquareQuantile(0.999, planar ? 3 : 6));
+      EXPECT_GT(told, 0.5 * expected);  // the linear model is poor this far off; the verdict is the same
     }
   }
 }

@@ -514,9 +514,8 @@ TEST(BackgroundFinish, UsesTheRobustWeightsOfThePasses) {
   ASSERT_TRUE(p.mergeFinish(runFinishJob(std::move(*job))));
   EXPECT_EQ(p.status().down_weighted.size(), 1u);
   // The optimum without the wrong one.
-  toro::PoseGraph clean;
-  for (const toro::Node& n : p.graph().nodes()) clean.addNode(n.id, n.pose);
-  for (std::size_t c = 0; c < wrong_index; ++c) clean.addConstraint(p.graph().constraints()[c]);
+  const toro::PoseGraph clean =
+      toro::keepConstraints(p.graph(), [&](std::size_t c) { return c < wrong_index; });
   // Its small weight still pulls a little; at full weight (the finish's own plain chi2) it would
   // pull the map metres away.
   const double from_clean = maxPositionDifference(optimum(clean), p.graph(), clean.numNodes());

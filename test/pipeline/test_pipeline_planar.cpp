@@ -199,12 +199,27 @@ TEST_F(PlanarPipeline, ALoaded3DGraphIsProjectedAndGrowsInThePlane) {
     EXPECT_TRUE(exactlyPlanar(k.odom_T_base)) << k.id;
 }
 
-TEST(PlanarPipelineGate, ThresholdHasThreeDegreesOfFreedom) {
-  PipelineOptions o = planarOptions(true);
-  o.loop_closure_gate_confidence = 0.99;
-  EXPECT_DOUBLE_EQ(Pipeline(o).gateThreshold(), toro::chiSquareQuantile(0.99, 3));
-  o.planar = false;
-  EXPECT_DOUBLE_EQ(Pipeline(o).gateThreshold(), toro::chiSquareQuantile(0.99, 6));
+// The gate counts the degrees of freedom the input has: 3 in planar mode whatever comes in, and in
+// the 3D pipeline while every measurement is planar (a 2D robot's bag); 6 once one leaves the plane.
+TEST(PlanarPipelineGate, ThresholdCountsTheInputsDegreesOfFreedom) {
+  const double three = toro::chiSquareQuantile(0.99, 3), six = toro::chiSquareQuantile(0.99, 6);
+  const DriftScenario flat = makeDriftingSquare();
+  const UnevenFloor uneven = makeUnevenFloor();
+  for (const bool planar : {true, false}) {
+    SCOPED_TRACE(planar ? "planar mode" : "3D pipeline");
+    PipelineOptions o = planarOptions(planar);
+    o.loop_closure_gate_confidence = 0.99;
+    o.loop_closure_gate_variance_factor = 0.5;
+    Pipeline on_flat(o);
+    EXPECT_DOUBLE_EQ(on_flat.gateThreshold(), 0.5 * three);  // nothing seen yet
+    for (const nav_msgs::Odometry& m : flat.odometry) on_flat.handleOdometry(m);
+    ASSERT_GT(on_flat.status().keyframes, 10u);
+    EXPECT_DOUBLE_EQ(on_flat.gateThreshold(), 0.5 * three);
+    Pipeline on_uneven(o);
+    for (const nav_msgs::Odometry& m : uneven.s.odometry) on_uneven.handleOdometry(m);
+    ASSERT_GT(on_uneven.status().keyframes, 10u);
+    EXPECT_DOUBLE_EQ(on_uneven.gateThreshold(), 0.5 * (planar ? three : six));
+  }
 }
 
 TEST(PlanarCovariance, KeepsThePlanarRowsAndIgnoresTheOthers) {

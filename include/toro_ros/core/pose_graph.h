@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstddef>
+#include <functional>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
@@ -63,6 +64,9 @@ class PoseGraph {
   // Multiplies constraint c's information by `factor` (> 0 and finite, else GraphError): a
   // positive multiple of a valid information is valid, so no re-validation is needed.
   void scaleInformation(std::size_t c, double factor);
+  // Sets constraint c's kind (GraphError if there is no constraint c); nothing else changes, so no
+  // re-validation is needed.
+  void setKind(std::size_t c, ConstraintKind kind);
 
   // Empty string if the constraint is acceptable for this graph, otherwise the reason.
   // Checks: finite measurement and information, symmetric positive-definite information,
@@ -100,6 +104,11 @@ class PoseGraph {
   std::vector<NodeId> fixed_;
   GraphDimension dimension_ = GraphDimension::k3D;
 };
+
+// The graph with only the constraints c for which keep(c) is true, in their order; the nodes, their
+// poses, the fixed nodes and the dimension as in `graph`.  What a finish without held or set-aside
+// loop closures, or a leave-one-out solve, runs on.
+PoseGraph keepConstraints(const PoseGraph& graph, const std::function<bool(std::size_t)>& keep);
 
 // Conversions of a translation-first 6x6 information matrix between angle units (per rad^2 on the
 // rotation vector or Euler angles: TORO files, geometry_msgs covariances) and the core's units

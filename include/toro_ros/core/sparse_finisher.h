@@ -161,9 +161,24 @@ struct FinishReport {
   // it would bring to first order, chi-square with 6 (3 in 2D) degrees of freedom for a right
   // one.  -1 where it cannot be told (an end not in the graph, a Hessian that does not factorise).
   std::vector<double> innovation_chi2;
+  // Per `included` constraint of optimize(), in its order: its leave-one-out innovation chi2, what
+  // innovation_chi2 would give it were it left out, computed from the finish with it (for a
+  // constraint at full weight e^T (Sigma_z - J H^-1 J^T)^-1 e; in a linear-Gaussian model exactly
+  // the left-out value).  -1 where it cannot be told (set aside, or nothing else constrains its
+  // ends along some direction).
+  std::vector<double> included_innovation_chi2;
 };
 
 using FinishCallback = std::function<void(const FinishIteration&)>;
+
+// A constraint of the graph whose leave-one-out innovation a finish gives (optimize's `included`).
+struct IncludedConstraint {
+  std::size_t index = 0;  // in the graph
+  // The weight its information in the graph carries (a caller's robust weight applied with
+  // PoseGraph::scaleInformation): its innovation is against its information over this, the
+  // information it would be tested with were it left out.  In (0, 1].
+  double weight = 1.0;
+};
 
 class LevenbergMarquardt {
  public:
@@ -176,9 +191,12 @@ class LevenbergMarquardt {
   // solve only and counted in the report; the graph's constraints are left as they are.
   // Throws std::runtime_error if the sparse factorisation fails for a reason damping cannot cure.
   // `candidates`: constraints not in the graph (e.g. loop closures held out of it) whose
-  // innovation chi2 against the finished graph the report gives (innovation_chi2).
+  // innovation chi2 against the finished graph the report gives (innovation_chi2).  `included`:
+  // constraints of `graph` whose leave-one-out innovation it gives (included_innovation_chi2),
+  // e.g. to calibrate the test of the candidates on the graph's own.
   FinishReport optimize(PoseGraph& graph, const FinishCallback& callback = {},
-                        const std::vector<Constraint>& candidates = {}) const;
+                        const std::vector<Constraint>& candidates = {},
+                        const std::vector<IncludedConstraint>& included = {}) const;
 
   const FinishOptions& options() const { return options_; }
 

@@ -103,6 +103,11 @@ struct FinishJob {
   // Held loop closures (constraint indices) whose innovation against the finished map the
   // outcome gives: the test by what the whole graph says of them (MapOptimizer::mergeFinish).
   std::vector<std::size_t> innovation_candidates;
+  // Accepted loop closures (constraint indices, counted in the finish) whose leave-one-out
+  // innovation the outcome gives: samples of the sender's right loop closures that calibrate the
+  // test of the held ones (MapOptimizer::calibratedInnovationThreshold).  Only beside
+  // innovation_candidates, whose factorisation they share.
+  std::vector<std::size_t> calibration_samples;
   // Sum over loop closures of min(1, weight): the finish's redundancy over its dof.
   double loop_closure_weight = 0.0;
   // Also solve the graph from scratch (TORO from the odometry chain, then the finish) and keep
@@ -130,6 +135,9 @@ struct FinishOutcome {
   double seconds = 0.0;  // wall time of the finish (reported only)
   // Per job.innovation_candidates entry: (constraint index, toro::FinishReport::innovation_chi2).
   std::vector<std::pair<std::size_t, double>> innovations;
+  // Per job.calibration_samples entry that could be told: (constraint index, its leave-one-out
+  // innovation chi2, toro::FinishReport::included_innovation_chi2).
+  std::vector<std::pair<std::size_t, double>> calibration_innovations;
   double loop_closure_weight = 0.0;   // the job's
   std::vector<std::size_t> left_out;  // constraints the finish left out (weight below its set-aside weight)
   bool from_scratch_kept = false;     // the job's solution from scratch ended lower and was taken
@@ -139,6 +147,14 @@ struct FinishOutcome {
 // reported in the outcome.  `cancelled` (optional) is polled after every iteration: when it
 // returns true the finish stops and the outcome says so (not success).
 FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled = {});
+
+// The loop-closure gate (PipelineOptions::loop_closure_gate_*): off when confidence is 0.  Its
+// threshold is the chi-square quantile at `confidence` for the input's degrees of freedom
+// (MapOptimizer::dof: 3 while every measurement is planar) times variance_factor.
+struct GateOptions {
+  double confidence = 0.0;
+  double variance_factor = 1.0;
+};
 
 class MapOptimizer {
  public:
@@ -150,7 +166,7 @@ class MapOptimizer {
   // outlive this) receives the counts of passes, applied, rejected and re-admitted loop closures
   // and finishes.
   MapOptimizer(const OptimizationOptions& optimization, const toro::RobustOptions& robust, bool planar,
-               double gate_threshold, PipelineCounters* counters, RefusalSink refuse = nullptr,
+               const GateOptions& gate, PipelineCounters* counters, RefusalSink refuse = nullptr,
                WarningSink warn = nullptr);
 
   // Graph growth.  A keyframe with an odometry constraint (from the previous keyframe, whose
@@ -189,7 +205,7 @@ class MapOptimizer {
   // Run-time tuning: the schedule's numbers, the gate threshold and the robust width (the
   // adaptation starts again from it); the caller validated them.
   void applyLiveOptions(const OptimizationOptions& optimization, const toro::RobustOptions& robust,
-                        double gate_threshold);
+                        const GateOptions& gate);
 
   const toro::PoseGraph& graph() const { return optimizer_.graph(); }
   // The information of the odometry step between consecutive keyframes a and b (odometry()),
@@ -204,7 +220,8 @@ class MapOptimizer {
   std::vector<DownWeightedLoopClosure> downWeighted() const;
   // Loop closures held for want of support now (weight 0; see OptimizationOptions).
   std::size_t heldLoopClosures() const;
-  double gateThreshold() const { return gate_threshold_; }
+  // Infinity when the gate is off.
+  double gateThreshold() const;
   double robustWidth() const { return robust_.enabled() ? robust_width_ : 0.0; }
   double lastChi2() const { return last_chi2_; }
   double lastOptimizationSec() const { return last_optimization_sec_; }
@@ -230,14 +247,23 @@ class MapOptimizer {
   // those tested longest ago first, at most kInnovationTestsPerFinish.  `job.loop_closure_weight`
   // must be set (it is remembered for the next re-test, kInnovationRetestGrowth).
   std::vector<std::size_t> innovationCandidates(const FinishJob& job);
+  // Accepted loop closures for the same finish to give leave-one-out innovations of
+  // (FinishJob::calibration_samples): kCalibrationSamplesPerFinish, round robin; none when the job
+  // tests no held one.
+  std::vector<std::size_t> calibrationSamples(const FinishJob& job);
   // Sum over loop closures of min(1, weight): the redundancy of a finish over its dof.
   double loopClosureWeight(const std::vector<double>& weights) const;
   // Whether loopClosureWeight(optimizer_.weights()) reaches kMinLoopClosuresForScale (stops there:
   // asked at every held arrival).
   bool scaleReadable() const;
   // Releases the held loop closures the finished map predicts (FinishOutcome::innovations); true
-  // if any.
+  // if any.  Keeps the outcome's calibration samples first.
   bool releasePredicted(const FinishOutcome& outcome);
+  // The kCalibrationQuantile of the accepted loop closures' sampled leave-one-out innovations
+  // (accepted_innovation_, those still accepted), once kMinCalibrationSamples are known; else -1.
+  // The release test of a held loop closure spanning more than the support window reads it
+  // (within kMaxCalibratedWidening of its model threshold).
+  double calibratedInnovationThreshold() const;
   // False (and said once) when constraints leave axes unmeasured: the background finish is off.
   bool finishDetermined();
   // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints.
@@ -245,7 +271,7 @@ class MapOptimizer {
   void replaceGraph(const toro::PoseGraph& graph, const std::vector<double>& caps = {});
   void adaptRobustWidth();
   // The gate: remember the state before a loop closure, test it after its pass.
-  bool gateEnabled() const { return gate_threshold_ < std::numeric_limits<double>::infinity(); }
+  bool gateEnabled() const { return gate_.confidence > 0.0; }
   void beginGate(const ros::Time& message_stamp);
   void settleGate();
   void rejectCandidate(double chi2);
@@ -343,7 +369,7 @@ class MapOptimizer {
   // mode (manhattan.g2o replayed: release threshold 4.75 against 6.41, five right loop closures
   // held at the end against one; bench/innovation_calibration.md).
   bool planar_measurements_ = true;
-  double gate_threshold_;
+  GateOptions gate_;
   PipelineCounters* counters_;
   RefusalSink refuse_;
   WarningSink warn_;
@@ -405,6 +431,11 @@ class MapOptimizer {
   // Per constraint: the finish sequence that last tested its innovation (0: never).
   std::vector<std::uint64_t> innovation_tested_;
   std::uint64_t innovation_round_ = 0;     // innovation test batches so far
+  // Per constraint: the leave-one-out innovation chi2 of an accepted loop closure at the last finish
+  // that sampled it (NaN: none), for calibratedInnovationThreshold; valid for calibration_structure_.
+  std::vector<double> accepted_innovation_;
+  std::uint64_t calibration_structure_ = 0;
+  std::size_t calibration_cursor_ = 0;     // the constraint calibrationSamples looks at next (round robin)
   double innovation_tested_weight_ = 0.0;  // loopClosureWeight at the last batch
   bool held_since_finish_ = false;         // a loop closure was held since the last finish was taken
   bool finish_after_release_ = false;      // the last merge released held loop closures (takeFinishJob)

@@ -69,8 +69,9 @@ struct PipelineOptions {
   // (the motion between a stamp and its keyframe); older messages are thinned (odometry_history.h).
   double odometry_history_sec = 60.0;
   // Loop-closure gate (see pipeline_gate.cpp): after a new loop closure's affected pass, its g2o
-  // chi2 must not exceed the chi-square quantile with 6 degrees of freedom at this confidence, else
-  // the graph is restored without it and it is kept as rejected.  0 disables the gate; must be < 1.
+  // chi2 must not exceed the chi-square quantile at this confidence, with 6 degrees of freedom (3
+  // while every measurement is planar, as in planar mode), else the graph is restored without it
+  // and it is kept as rejected.  0 disables the gate; must be < 1.
   // Off by default: the test is only as good as the declared covariances, and with the default
   // odometry covariances ordinary wheel drift (3 %, 0.02 rad/m) fails it for right loop closures.
   double loop_closure_gate_confidence = 0.0;
@@ -259,8 +260,8 @@ class Pipeline {
   std::string logged_odometry_rule_;          // the convention last logged ("" none yet)
   std::vector<AxisReadings> logged_loop_closure_axes_;  // loop-closure readings logged so far
   std::string loop_closure_rule_;
-  // The chi2 above which the gate refuses a loop closure (infinity when the gate is off).
-  static double gateThresholdFor(const PipelineOptions& options);
+  // The gate's part of the options (MapOptimizer::gateThreshold counts the input's degrees of freedom).
+  static GateOptions gateOptionsOf(const PipelineOptions& options);
   std::unordered_set<std::uint64_t> applied_messages_;  // hashes of applied loop-closure messages
   // Persistence: set by loadGraph until newer odometry arrives; the last autosave.
   std::optional<ros::Time> resume_after_;
