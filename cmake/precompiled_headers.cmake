@@ -7,8 +7,9 @@
 # precompiles its kind's set for its own sources; the test executables
 # (one source each) share one set per kind, made by the first test of that kind (a library's
 # cannot serve them: it is compiled position-independent).  The sets are pre-included, so a source
-# that forgets an include still compiles here: scripts/fuzz.sh builds the libraries with
-# TORO_PRECOMPILED_HEADERS=OFF, which checks theirs.
+# that forgets an include still compiles here: scripts/fuzz.sh and scripts/sanitize.sh build with
+# TORO_PRECOMPILED_HEADERS=OFF, which checks it (and the sanitizer builds were no faster with
+# them; bench/ci_timing.md).
 option(TORO_PRECOMPILED_HEADERS "Precompile the headers most sources parse" ON)
 
 # The core's set: the standard library and Eigen parts nearly every core source uses.  No ROS
