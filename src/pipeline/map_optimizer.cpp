@@ -954,7 +954,8 @@ bool MapOptimizer::releasePredicted(const FinishOutcome& outcome) {
                                             : innovationThreshold(outcome);
   // For loop closures that span more than the support window (a lone revisit: nothing but the map
   // judges it), at least the accepted loop closures' own quantile, within kMaxCalibratedWidening.
-  const double calibrated = threshold >= 0.0 ? std::min(kMaxCalibratedWidening * threshold,
+  // Read only when there is a held one to test (most merges have none: it sorts every sample).
+  const double calibrated = threshold >= 0.0 && !outcome.innovations.empty() ? std::min(kMaxCalibratedWidening * threshold,
                                                         std::max(threshold, calibratedInnovationThreshold()))
                                              : threshold;
   bool any = false;
