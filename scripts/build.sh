@@ -3,7 +3,7 @@
 #
 # Environment: TORO_BUILD_DIR (build directory, relative to the repo root or absolute; default build),
 # TORO_JOBS (parallel jobs, default 2), TORO_BUILD_TYPE (default Release),
-# TORO_BUILD_TARGETS (space-separated, default "all tests"; e.g. "bench_toro" for the benchmark only),
+# TORO_BUILD_TARGETS (space-separated, default "all tests benchmarks"; e.g. "bench_toro" for one benchmark),
 # TORO_SKIP_INSTALL=1 (do not run scripts/install_deps.sh first).
 set -euo pipefail
 
@@ -12,7 +12,7 @@ BUILD_DIR="${TORO_BUILD_DIR:-build}"
 [[ "${BUILD_DIR}" = /* ]] || BUILD_DIR="${REPO_ROOT}/${BUILD_DIR}"
 JOBS="${TORO_JOBS:-2}"
 BUILD_TYPE="${TORO_BUILD_TYPE:-Release}"
-read -r -a TARGETS <<<"${TORO_BUILD_TARGETS:-all tests}"
+read -r -a TARGETS <<<"${TORO_BUILD_TARGETS:-all tests benchmarks}"
 
 # A pyenv python3 first on PATH cannot import the ROS Python modules; use Debian's.
 export PYENV_VERSION=system

@@ -42,14 +42,19 @@ WHICH="${1:-all}"
 export PYENV_VERSION=system ROS_HOSTNAME=localhost
 # Sanitizer builds: -O1 and line tables only (see above); NDEBUG as in the Release build the same
 # tests run in.
-SANITIZER_FLAGS="-O1 -g1 -DNDEBUG"
+SANITIZER_COMPILER="${TORO_SANITIZER_COMPILER:-gcc}"
+case "${SANITIZER_COMPILER}" in
+  gcc) SANITIZER_FLAGS="-O1 -g1 -DNDEBUG" COMPILERS=(-DCMAKE_C_COMPILER=gcc -DCMAKE_CXX_COMPILER=g++) ;;
+  clang) SANITIZER_FLAGS="-O1 -gline-tables-only -DNDEBUG" COMPILERS=(-DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++) ;;
+  *) echo "sanitize.sh: TORO_SANITIZER_COMPILER must be gcc or clang" >&2; exit 2 ;;
+esac
 
 absolute() { [[ "$1" = /* ]] && printf '%s' "$1" || printf '%s/%s' "${REPO_ROOT}" "$1"; }
 
 # configureAndBuild <build dir> <sanitizer> <targets>
 configureAndBuild() {
   mkdir -p "$1"
-  cmake -S "${REPO_ROOT}" -B "$1" -DTORO_SANITIZER="$2" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  cmake -S "${REPO_ROOT}" -B "$1" "${COMPILERS[@]}" -DTORO_SANITIZER="$2" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="${SANITIZER_FLAGS}" -DCMAKE_C_FLAGS_RELWITHDEBINFO="${SANITIZER_FLAGS}" \
     -DTORO_PRECOMPILED_HEADERS=OFF \
     -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 >"$1/sanitize-configure.log" 2>&1 </dev/null ||

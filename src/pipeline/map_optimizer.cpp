@@ -909,7 +909,19 @@ std::vector<std::size_t> MapOptimizer::innovationCandidates(const FinishJob& job
 
 std::vector<std::size_t> MapOptimizer::calibrationSamples(const FinishJob& job) {
   std::vector<std::size_t> samples;
-  if (job.innovation_candidates.empty()) return samples;
+  // Beside the tests of held loop closures, and, once the map counts kMinCalibrationSamples loop
+  // closures, at every finish until that many are known: a lone revisit after a long loop is
+  // tested when it arrives and then rarely (nothing else arrives to re-test it for), so the
+  // calibration must be ready by then.  Only beside tests, a sender whose loop closures are rarely
+  // held has few such finishes (a track in laps with 480 loop closures had sampled 98 when its
+  // first lone revisit arrived, and that right one stayed held).  Not before the map counts that
+  // many: the samples cost a factorisation of their own (LevenbergMarquardt::optimize), which
+  // every finish of a long drive with few loop closures would pay; this way about
+  // kMinCalibrationSamples / kCalibrationSamplesPerFinish finishes do.
+  const bool calibrating =
+      (calibration_structure_ != structure_ || calibration_known_ < kMinCalibrationSamples) &&
+      job.loop_closure_weight >= static_cast<double>(kMinCalibrationSamples);
+  if (job.innovation_candidates.empty() && !calibrating) return samples;
   const std::size_t n = std::min(is_loop_closure_.size(), job.weights.size());
   for (std::size_t step = 0; step < n && samples.size() < kCalibrationSamplesPerFinish; ++step) {
     if (calibration_cursor_ >= n) calibration_cursor_ = 0;
@@ -941,10 +953,14 @@ bool MapOptimizer::releasePredicted(const FinishOutcome& outcome) {
   if (calibration_structure_ != structure_) {
     accepted_innovation_.clear();
     calibration_structure_ = structure_;
+    calibration_known_ = 0;
   }
   accepted_innovation_.resize(is_loop_closure_.size(), kNaN);
-  for (const auto& [c, chi2] : outcome.calibration_innovations)
-    if (c < accepted_innovation_.size()) accepted_innovation_[c] = chi2;
+  for (const auto& [c, chi2] : outcome.calibration_innovations) {
+    if (c >= accepted_innovation_.size()) continue;
+    calibration_known_ += std::isnan(accepted_innovation_[c]) ? 1 : 0;
+    accepted_innovation_[c] = chi2;
+  }
   // Never wider than the pair threshold: the variance factor is read from the loop closures that
   // count, and a few wrong ones among them (accepted before the sender's scale was learnt) raise
   // it far above the sender's scale (parking-garage seed-3 replay with 1000 random wrong ones: a

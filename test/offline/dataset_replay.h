@@ -45,15 +45,23 @@ inline void makeMessages(DatasetReplay* r) {
   addCovariances(r->graph, &r->timeline);
 }
 
-inline DatasetReplay loadDatasetReplay(const std::string& file) {
+// `graph` (sorted by id) replayed one keyframe per node at 4 Hz, as graph_to_bag
+// --keyframe-period 0.25 writes it; its first `clean_constraints` are the clean ones (all if not
+// given), `name` names it in messages.
+inline DatasetReplay graphReplay(toro::PoseGraph graph, const std::string& name,
+                                 std::optional<std::size_t> clean_constraints = std::nullopt) {
   DatasetReplay r;
-  r.file = file;
-  r.graph = sortedById(toro::readGraph(toro_test::datasetPath(file)));
-  r.clean_constraints = r.graph.numConstraints();
+  r.file = name;
+  r.graph = std::move(graph);
+  r.clean_constraints = clean_constraints.value_or(r.graph.numConstraints());
   r.options.odometry_rate_hz = 4.0;
   r.options.keyframe_period_sec = 0.25;
   makeMessages(&r);
   return r;
+}
+
+inline DatasetReplay loadDatasetReplay(const std::string& file) {
+  return graphReplay(sortedById(toro::readGraph(toro_test::datasetPath(file))), file);
 }
 
 // The shipped replay configuration (every file node a keyframe), default parameters otherwise.

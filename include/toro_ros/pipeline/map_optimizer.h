@@ -249,7 +249,8 @@ class MapOptimizer {
   std::vector<std::size_t> innovationCandidates(const FinishJob& job);
   // Accepted loop closures for the same finish to give leave-one-out innovations of
   // (FinishJob::calibration_samples): kCalibrationSamplesPerFinish, round robin; none when the job
-  // tests no held one.
+  // tests no held one, unless the map counts kMinCalibrationSamples loop closures and fewer samples
+  // are known.  `job.loop_closure_weight` must be set.
   std::vector<std::size_t> calibrationSamples(const FinishJob& job);
   // Sum over loop closures of min(1, weight): the redundancy of a finish over its dof.
   double loopClosureWeight(const std::vector<double>& weights) const;
@@ -435,6 +436,7 @@ class MapOptimizer {
   // that sampled it (NaN: none), for calibratedInnovationThreshold; valid for calibration_structure_.
   std::vector<double> accepted_innovation_;
   std::uint64_t calibration_structure_ = 0;
+  std::size_t calibration_known_ = 0;      // entries of accepted_innovation_ that are not NaN
   std::size_t calibration_cursor_ = 0;     // the constraint calibrationSamples looks at next (round robin)
   double innovation_tested_weight_ = 0.0;  // loopClosureWeight at the last batch
   bool held_since_finish_ = false;         // a loop closure was held since the last finish was taken
