@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "toro_ros/core/pose_graph.h"
+#include "toro_ros/core/random_draws.h"
 
 namespace toro_bench {
 
@@ -57,9 +58,7 @@ inline Cell step(const Cell& c, int& heading, std::mt19937& rng, const Synthetic
 
 inline toro::Pose3 noisy(const toro::Pose3& exact, std::mt19937& rng, const SyntheticOptions& o) {
   std::normal_distribution<double> rot(0.0, o.rotation_sigma_rad), trans(0.0, o.translation_sigma_m);
-  const toro::Pose3 noise = toro::Pose3::fromAngleAxis(toro::Vector3(rot(rng), rot(rng), rot(rng)),
-                                                       toro::Vector3(trans(rng), trans(rng), trans(rng)));
-  return exact * noise;
+  return exact * toro::drawPose3(rot, trans, rng);
 }
 
 }  // namespace detail
@@ -75,9 +74,12 @@ inline std::vector<toro::Pose3> syntheticTrajectory(const SyntheticOptions& o,
   for (std::size_t i = 0; i < o.nodes; ++i) {
     if (i > 0) cell = detail::step(cell, heading, rng, o);
     const double yaw = heading * M_PI / 2.0;
+    // Drawn in a fixed order (toro::drawLastFirst): the tilts, then z, y, x.
+    const auto tilts = toro::drawLastFirst<2>(tilt, rng);
+    const auto offset = toro::drawVector3(jitter, rng);
     truth.push_back(toro::Pose3::fromRollPitchYaw(
-        cell.x * o.cell_size_m + jitter(rng), cell.y * o.cell_size_m + jitter(rng),
-        cell.z * o.cell_size_m + jitter(rng), tilt(rng), tilt(rng), yaw));
+        cell.x * o.cell_size_m + offset.x(), cell.y * o.cell_size_m + offset.y(),
+        cell.z * o.cell_size_m + offset.z(), tilts[0], tilts[1], yaw));
     cell_keys->push_back(cell.key(o));
   }
   return truth;

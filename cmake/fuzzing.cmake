@@ -5,6 +5,13 @@
 # A target that includes a toro_ros/pipeline header links the pipeline library (and so ROS'
 # serialisation and message types); the others link only the core.
 option(TORO_BUILD_FUZZERS "Build libFuzzer targets (needs clang)" OFF)
+if(TORO_BUILD_FUZZERS)
+  # libFuzzer's coverage feedback in the libraries the targets exercise.  Only there: the same
+  # build (scripts/sanitize.sh's ASan+UBSan build, which scripts/test.sh's fuzz stage reuses) runs
+  # the test suite, and its own code need not pay the counters.
+  target_compile_options(toro_core PRIVATE -fsanitize=fuzzer-no-link)
+  target_compile_options(toro_pipeline PRIVATE -fsanitize=fuzzer-no-link)
+endif()
 file(GLOB TORO_FUZZ_SOURCES CONFIGURE_DEPENDS ${PROJECT_SOURCE_DIR}/test/fuzz/fuzz_*.cpp)
 foreach(src ${TORO_FUZZ_SOURCES})
   get_filename_component(name ${src} NAME_WE)

@@ -1,4 +1,5 @@
 #include "toro_ros/core/synthetic.h"
+#include "toro_ros/core/random_draws.h"
 
 #include <cmath>
 #include <random>
@@ -18,8 +19,7 @@ Matrix6 informationFor(const NoiseOptions& noise) {
 
 Pose3 perturb(const Pose3& pose, const NoiseOptions& noise, std::mt19937& rng) {
   std::normal_distribution<double> nt(0.0, noise.translation_sigma_m), nr(0.0, noise.rotation_sigma_rad);
-  const Pose3 delta = Pose3::fromAngleAxis(Vector3(nr(rng), nr(rng), nr(rng)), Vector3(nt(rng), nt(rng), nt(rng)));
-  return pose * delta;
+  return pose * drawPose3(nr, nt, rng);
 }
 
 // Orientation whose x axis points along `forward`, with z as close to `up` as possible.

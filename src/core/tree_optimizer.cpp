@@ -12,7 +12,6 @@ namespace toro {
 
 namespace {
 
-constexpr std::size_t kNone = ParameterTree::kNone;
 // Inverse stiffness of a node no constraint passes through yet (capped per update anyway).
 constexpr double kUnconstrained = 1e300;
 

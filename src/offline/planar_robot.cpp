@@ -9,6 +9,7 @@
 #include <rosbag/exceptions.h>
 
 #include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/random_draws.h"
 #include "toro_ros/offline/graph_to_bag.h"
 #include "toro_ros/offline/robot_messages.h"
 #include "toro_ros/pipeline/covariance_conversion.h"
@@ -128,8 +129,9 @@ LoopClosure scanMatch(const PlanarRobotOptions& o, double t_from, double t_to, s
   std::normal_distribution<double> unit(0.0, 1.0);
   const double st = o.loop_closure_translation_stddev_m, sa = o.loop_closure_yaw_stddev_rad;
   const double sz = o.loop_closure_out_of_plane_stddev;
-  const toro::Pose3 noise = toro::Pose3::fromRollPitchYaw(st * unit(rng), st * unit(rng), sz * unit(rng),
-                                                          sz * unit(rng), sz * unit(rng), sa * unit(rng));
+  const auto d = toro::drawLastFirst<6>(unit, rng);
+  const toro::Pose3 noise =
+      toro::Pose3::fromRollPitchYaw(st * d[0], st * d[1], sz * d[2], sz * d[3], sz * d[4], sa * d[5]);
   LoopClosure msg;
   msg.stamp_from = stampAt(o, t_from);
   msg.stamp_to = stampAt(o, t_to);

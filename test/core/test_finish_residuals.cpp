@@ -8,6 +8,7 @@
 
 #include "toro_ros/core/finish_residuals.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/random_draws.h"
 
 using namespace toro;
 
@@ -15,8 +16,8 @@ namespace {
 
 Pose3 randomPose(std::mt19937& rng, double rotation_scale, double translation_scale = 2.0) {
   std::normal_distribution<double> n(0.0, 1.0);
-  return Pose3::fromAngleAxis(rotation_scale * Vector3(n(rng), n(rng), n(rng)),
-                              translation_scale * Vector3(n(rng), n(rng), n(rng)));
+  const Vector3 t = drawVector3(n, rng);
+  return Pose3::fromAngleAxis(rotation_scale * drawVector3(n, rng), translation_scale * t);
 }
 
 // Central differences of the residual along each coordinate of delta_i (which = 0) or delta_j.
@@ -107,8 +108,9 @@ TEST(FinishResiduals, SE2JacobiansMatchNumericAndWrap) {
   std::normal_distribution<double> n(0.0, 1.0);
   const double h = 1e-6;
   for (int trial = 0; trial < 100; ++trial) {
-    const Vector3 xi(2 * n(rng), 2 * n(rng), 3 * n(rng)), xj(2 * n(rng), 2 * n(rng), 3 * n(rng));
-    const Vector3 z(n(rng), n(rng), 3 * n(rng));
+    const Vector3 scale(2, 2, 3);
+    const Vector3 xi = scale.cwiseProduct(drawVector3(n, rng)), xj = scale.cwiseProduct(drawVector3(n, rng));
+    const Vector3 z = Vector3(1, 1, 3).cwiseProduct(drawVector3(n, rng));
     Linearization2D lin;
     linearizeSE2(xi, xj, z, &lin);
     EXPECT_LE(std::abs(lin.error.z()), M_PI);

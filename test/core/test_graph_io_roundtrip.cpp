@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "toro_ros/core/graph_io.h"
+#include "toro_ros/core/random_draws.h"
 
 using namespace toro;
 
@@ -48,9 +49,11 @@ PoseGraph randomGraph(std::mt19937& rng, bool planar) {
   std::normal_distribution<double> n(0.0, 1.0);
   PoseGraph g;
   for (NodeId id = 0; id < 6; ++id) {
-    const Pose3 p =
-        planar ? Pose3::fromRollPitchYaw(n(rng), n(rng), 0, 0, 0, n(rng))
-               : Pose3::fromAngleAxis(Vector3(n(rng), n(rng), n(rng)), Vector3(n(rng), n(rng), n(rng)));
+    const auto xy_yaw = [&] {
+      const auto d = drawLastFirst<3>(n, rng);
+      return Pose3::fromRollPitchYaw(d[0], d[1], 0, 0, 0, d[2]);
+    };
+    const Pose3 p = planar ? xy_yaw() : drawPose3(n, n, rng);
     g.addNode(id * 3, p);
   }
   for (NodeId k = 0; k < 10; ++k) {
@@ -58,9 +61,8 @@ PoseGraph randomGraph(std::mt19937& rng, bool planar) {
     c.from = 3 * (k % 6);
     c.to = 3 * ((k * 5 + 1) % 6);
     if (c.from == c.to) c.to = 3 * ((k + 1) % 6);
-    c.measurement =
-        relativePose(g.pose(c.from), g.pose(c.to)) *
-        Pose3::fromRollPitchYaw(0.1 * n(rng), 0.1 * n(rng), planar ? 0 : 0.1 * n(rng), 0, 0, 0.1 * n(rng));
+    const double yaw = 0.1 * n(rng), z = planar ? 0 : 0.1 * n(rng), y = 0.1 * n(rng), x = 0.1 * n(rng);
+    c.measurement = relativePose(g.pose(c.from), g.pose(c.to)) * Pose3::fromRollPitchYaw(x, y, z, 0, 0, yaw);
     if (planar) {
       Eigen::Matrix3d a = Eigen::Matrix3d::Random();
       Eigen::Matrix3d p = a * a.transpose() + Eigen::Matrix3d::Identity();

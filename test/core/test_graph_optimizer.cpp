@@ -8,6 +8,7 @@
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/random_draws.h"
 
 using namespace toro;
 
@@ -18,8 +19,8 @@ PoseGraph noisyLoop(unsigned seed, int n = 40) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> noise(0.0, 1.0);
   auto jitter = [&](double r, double t) {
-    return Pose3::fromAngleAxis(r * Vector3(noise(rng), noise(rng), noise(rng)),
-                                t * Vector3(noise(rng), noise(rng), noise(rng)));
+    const Vector3 translation = t * drawVector3(noise, rng);
+    return Pose3::fromAngleAxis(r * drawVector3(noise, rng), translation);
   };
   std::vector<Pose3> truth;
   for (int i = 0; i < n; ++i) {

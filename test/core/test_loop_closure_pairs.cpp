@@ -6,6 +6,7 @@
 
 #include "toro_ros/core/loop_closure_pairs.h"
 #include "toro_ros/core/pose_graph.h"
+#include "toro_ros/core/random_draws.h"
 
 using namespace toro;
 
@@ -126,7 +127,8 @@ TEST(LoopClosurePairs, ChiSquareDistributedForRightOnesWithNoise) {
     PoseGraph noisy;
     for (const Node& node : c.graph.nodes()) noisy.addNode(node.id, node.pose);
     const auto noise = [&](double sm, double sr) {
-      return Pose3::fromRollPitchYaw(sm * n(rng), sm * n(rng), sm * n(rng), sr * n(rng), sr * n(rng), sr * n(rng));
+      const auto d = drawLastFirst<6>(n, rng);
+      return Pose3::fromRollPitchYaw(sm * d[0], sm * d[1], sm * d[2], sr * d[3], sr * d[4], sr * d[5]);
     };
     for (const Constraint& k : c.graph.constraints()) {
       Constraint m = k;

@@ -8,6 +8,7 @@
 #include "shared_datasets.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/random_draws.h"
 
 using namespace toro;
 
@@ -21,6 +22,13 @@ Matrix6 diagonalInformation() {
 
 Pose3 yawPose(double x, double y, double z, double yaw) {
   return Pose3::fromRollPitchYaw(x, y, z, 0, 0, yaw);
+}
+
+// yawPose(sx * n, sy * n, 0, syaw * n) with draws of `n`, the yaw's drawn first.
+Pose3 drawnYawPose(std::normal_distribution<double>& n, std::mt19937& rng, double sx, double sy,
+                   double syaw) {
+  const auto d = drawLastFirst<3>(n, rng);
+  return yawPose(sx * d[0], sy * d[1], 0, syaw * d[2]);
 }
 
 // A 2D constraint lifted the way the readers lift it: z info = mean(xx, yy), roll/pitch/yaw info
@@ -37,8 +45,8 @@ Matrix6 liftPlanarInformation(const Eigen::Matrix3d& p) {
 
 Pose3 randomPose(std::mt19937& rng, double rotation_scale) {
   std::normal_distribution<double> n(0.0, 1.0);
-  return Pose3::fromAngleAxis(rotation_scale * Vector3(n(rng), n(rng), n(rng)),
-                              Vector3(n(rng), n(rng), n(rng)));
+  const Vector3 t = drawVector3(n, rng);
+  return Pose3::fromAngleAxis(rotation_scale * drawVector3(n, rng), t);
 }
 
 // A random SPD 6x6 information matrix.
@@ -186,10 +194,10 @@ TEST(Metrics, PlanarAndLiftedDefinitionsAgreeForSmallResiduals) {
   planar << 20.0, 1.0, 2.0, 1.0, 30.0, -1.5, 2.0, -1.5, 50.0;
   PoseGraph g;
   g.setDimension(GraphDimension::k2D);
-  for (int i = 0; i < 8; ++i) g.addNode(i, yawPose(3 * n(rng), 3 * n(rng), 0, 2 * n(rng)));
+  for (int i = 0; i < 8; ++i) g.addNode(i, drawnYawPose(n, rng, 3, 3, 2));
   for (int i = 0; i + 1 < 8; ++i) {
     const Pose3 exact = relativePose(g.pose(i), g.pose(i + 1));
-    const Pose3 noise = yawPose(1e-3 * n(rng), 1e-3 * n(rng), 0, 1e-3 * n(rng));
+    const Pose3 noise = drawnYawPose(n, rng, 1e-3, 1e-3, 1e-3);
     g.addConstraint(Constraint{i, i + 1, exact * noise, liftPlanarInformation(planar)});
   }
   const double chi2_2d = g2oChi2(g);
@@ -204,9 +212,9 @@ TEST(Metrics, PlanarInvariantUnderPlanarRigidTransform) {
   std::normal_distribution<double> n(0.0, 1.0);
   PoseGraph g;
   g.setDimension(GraphDimension::k2D);
-  for (int i = 0; i < 6; ++i) g.addNode(i, yawPose(n(rng), n(rng), 0, 3 * n(rng)));
+  for (int i = 0; i < 6; ++i) g.addNode(i, drawnYawPose(n, rng, 1, 1, 3));
   for (int i = 0; i + 1 < 6; ++i) {
-    const Pose3 z = relativePose(g.pose(i), g.pose(i + 1)) * yawPose(0.2 * n(rng), 0.2 * n(rng), 0, n(rng));
+    const Pose3 z = relativePose(g.pose(i), g.pose(i + 1)) * drawnYawPose(n, rng, 0.2, 0.2, 1);
     g.addConstraint(Constraint{i, i + 1, z, liftPlanarInformation(Eigen::Vector3d(2, 3, 4).asDiagonal())});
   }
   const double chi2 = g2oChi2(g), sesync = seSyncObjective(g);

@@ -12,6 +12,7 @@
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/planar.h"
+#include "toro_ros/core/random_draws.h"
 #include "toro_ros/core/tree_optimizer.h"
 
 using namespace toro;
@@ -48,7 +49,8 @@ PoseGraph planarLaps(int laps, std::uint32_t seed, double yaw_noise = 0.01) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> n(0.0, 1.0);
   const auto noisy = [&](const Pose3& z) {
-    return z * planarPose(0.02 * n(rng), 0.02 * n(rng), yaw_noise * n(rng));
+    const auto d = drawLastFirst<3>(n, rng);
+    return z * planarPose(0.02 * d[0], 0.02 * d[1], yaw_noise * d[2]);
   };
   PoseGraph g;
   g.setDimension(GraphDimension::k2D);
@@ -323,10 +325,13 @@ TEST(PlanarTree, ThreeDimensionalInputEndsExactlyPlanar) {
   std::mt19937 rng(4);
   std::normal_distribution<double> n(0.0, 0.02);
   PoseGraph tilted;
-  for (const Node& node : planar_truth.nodes())
-    tilted.addNode(node.id, node.pose * Pose3::fromRollPitchYaw(0, 0, n(rng), n(rng), n(rng), 0));
+  const auto tilt = [&] {
+    const auto d = drawLastFirst<3>(n, rng);
+    return Pose3::fromRollPitchYaw(0, 0, d[0], d[1], d[2], 0);
+  };
+  for (const Node& node : planar_truth.nodes()) tilted.addNode(node.id, node.pose * tilt());
   for (Constraint c : planar_truth.constraints()) {
-    c.measurement = c.measurement * Pose3::fromRollPitchYaw(0, 0, n(rng), n(rng), n(rng), 0);
+    c.measurement = c.measurement * tilt();
     for (int axis : {2, 3, 4}) c.information(axis, axis) = 1e-6;
     tilted.addConstraint(c);
   }

@@ -4,13 +4,14 @@
 #include <random>
 
 #include "toro_ros/core/pose3.h"
+#include "toro_ros/core/random_draws.h"
 
 using namespace toro;
 
 namespace {
 Pose3 randomPose(std::mt19937& rng) {
   std::normal_distribution<double> n(0.0, 1.0);
-  return Pose3::fromAngleAxis(Vector3(n(rng), n(rng), n(rng)), Vector3(n(rng), n(rng), n(rng)));
+  return drawPose3(n, n, rng);
 }
 void expectNear(const Pose3& a, const Pose3& b, double tol) {
   EXPECT_LT((a.inverse() * b).angle(), tol);

@@ -13,6 +13,7 @@
 #include "toro_ros/core/finish_residuals.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/random_draws.h"
 #include "toro_ros/core/sparse_finisher.h"
 
 using namespace toro;
@@ -21,8 +22,8 @@ namespace {
 
 Pose3 randomPose(std::mt19937& rng, double rotation_scale, double translation_scale) {
   std::normal_distribution<double> n(0.0, 1.0);
-  return Pose3::fromAngleAxis(rotation_scale * Vector3(n(rng), n(rng), n(rng)),
-                              translation_scale * Vector3(n(rng), n(rng), n(rng)));
+  const Vector3 t = drawVector3(n, rng);
+  return Pose3::fromAngleAxis(rotation_scale * drawVector3(n, rng), translation_scale * t);
 }
 
 Matrix6 randomInformation(std::mt19937& rng) {
@@ -66,11 +67,13 @@ PoseGraph noisyGraph2D(unsigned seed, int n = 30) {
   info(0, 5) = info(5, 0) = 2.0;
   PoseGraph g;
   g.setDimension(GraphDimension::k2D);
-  for (int i = 0; i < n; ++i)
-    g.addNode(i, truth[i] * planar(0.3 * noise(rng), 0.3 * noise(rng), 0.2 * noise(rng)));
+  for (int i = 0; i < n; ++i) {
+    const auto d = drawLastFirst<3>(noise, rng);
+    g.addNode(i, truth[i] * planar(0.3 * d[0], 0.3 * d[1], 0.2 * d[2]));
+  }
   auto add = [&](int a, int b) {
-    const Pose3 z =
-        relativePose(truth[a], truth[b]) * planar(0.1 * noise(rng), 0.1 * noise(rng), 0.05 * noise(rng));
+    const auto d = drawLastFirst<3>(noise, rng);
+    const Pose3 z = relativePose(truth[a], truth[b]) * planar(0.1 * d[0], 0.1 * d[1], 0.05 * d[2]);
     g.addConstraint(Constraint{a, b, z, info});
   };
   for (int i = 0; i < n; ++i) add(i, (i + 1) % n);
@@ -311,8 +314,9 @@ TEST(SparseFinisher, PlanarGraphMinimisesThe2DChi2AndStaysInThePlane) {
     if (node.id == 0) continue;
     const Vector3 rpy = g.pose(node.id).rollPitchYaw();
     const Vector3 t = g.pose(node.id).translation();
-    other.setPose(node.id, Pose3::fromRollPitchYaw(t.x() + n(rng), t.y() + n(rng), 0, 0, 0,
-                                                   rpy.z() + 2 * M_PI + n(rng)));
+    const auto d = drawLastFirst<3>(n, rng);
+    other.setPose(node.id,
+                  Pose3::fromRollPitchYaw(t.x() + d[0], t.y() + d[1], 0, 0, 0, rpy.z() + 2 * M_PI + d[2]));
   }
   const FinishReport r2 = LevenbergMarquardt(tightOptions()).optimize(other);
   EXPECT_NEAR(r2.final_chi2, r.final_chi2, 1e-9 * r.final_chi2);

@@ -18,6 +18,7 @@
 #include "toro_ros/core/graph_optimizer.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/planar.h"
+#include "toro_ros/core/random_draws.h"
 
 namespace {
 
@@ -101,8 +102,8 @@ void writePlanarLaps(const fs::path& path) {
   info.diagonal() << 400, 400, 1, 1, 1, 4 * 2500;
   info = toro::projectInformationToPlane(info);
   const auto add = [&](std::size_t a, std::size_t b) {
-    const toro::Pose3 noise =
-        toro::Pose3::fromRollPitchYaw(0.05 * n(rng), 0.05 * n(rng), 0, 0, 0, 0.02 * n(rng));
+    const auto d = toro::drawLastFirst<3>(n, rng);
+    const toro::Pose3 noise = toro::Pose3::fromRollPitchYaw(0.05 * d[0], 0.05 * d[1], 0, 0, 0, 0.02 * d[2]);
     g.addConstraint(toro::Constraint{static_cast<toro::NodeId>(a), static_cast<toro::NodeId>(b),
                                      toro::relativePose(truth[a], truth[b]) * noise, info});
   };

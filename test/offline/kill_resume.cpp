@@ -212,8 +212,6 @@ TEST(KillResume, KilledNodeResumesFromItsAutosaveAndLosesAtMostOnePeriod) {
 
   // First run: from the start to the kill.
   const std::size_t kill_at = static_cast<std::size_t>(kKillFraction * msgs.size());
-  std::uint64_t odometry_sent = 0;
-  for (std::size_t i = 0; i < kill_at; ++i) odometry_sent += msgs[i].odometry != nullptr;
   {
     NodeProcess first(log);
     ASSERT_TRUE(first.started());

@@ -12,6 +12,7 @@
 
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/random_draws.h"
 #include "toro_ros/offline/flat_yaml.h"
 #include "toro_ros/offline/graph_to_bag.h"
 #include "toro_ros/offline/robot_messages.h"
@@ -281,8 +282,7 @@ TEST_F(GraphToBagTest, ReversedOdometryConstraintGivesTheEquivalentForwardStep) 
   std::mt19937 rng(3);
   std::normal_distribution<double> n(0.0, 1e-4);
   for (int trial = 0; trial < 10; ++trial) {
-    const toro::Pose3 moved = step * toro::Pose3::fromAngleAxis(toro::Vector3(n(rng), n(rng), n(rng)),
-                                                                toro::Vector3(n(rng), n(rng), n(rng)));
+    const toro::Pose3 moved = step * toro::drawPose3(n, n, rng);
     reversed.setPose(1, moved);
     forward.setPose(1, moved);
     const double a = toro::constraintChi2(reversed, 0), b = toro::constraintChi2(forward, 0);

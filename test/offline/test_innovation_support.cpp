@@ -29,6 +29,7 @@
 #include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/outlier_generator.h"
+#include "toro_ros/core/random_draws.h"
 #include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/core/synthetic.h"
 
@@ -243,9 +244,7 @@ LapsAndExcursions make(std::uint32_t seed) {
   for (const toro::Node& n : s.graph.nodes()) graph.addNode(n.id, n.pose);
   for (toro::Constraint c : s.graph.constraints()) {
     if (c.to != c.from + 1 && in_tail(rng))
-      c.measurement =
-          c.measurement * toro::Pose3::fromAngleAxis(toro::Vector3(extra_r(rng), extra_r(rng), extra_r(rng)),
-                                                     toro::Vector3(extra_t(rng), extra_t(rng), extra_t(rng)));
+      c.measurement = c.measurement * toro::drawPose3(extra_r, extra_t, rng);
     graph.addConstraint(c);
   }
   const toro::Matrix6 information = s.graph.constraints().back().information;

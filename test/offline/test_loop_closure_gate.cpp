@@ -15,6 +15,7 @@
 
 #include "dataset_replay.h"
 #include "toro_ros/core/metrics.h"
+#include "toro_ros/core/random_draws.h"
 
 namespace toro_ros {
 namespace offline {
@@ -47,8 +48,9 @@ DatasetReplay makeReplay(const std::string& file, double outlier_fraction, unsig
     if (b - a < kMinGap ||
         (clean.odom_T_base[a].translation() - clean.odom_T_base[b].translation()).norm() < kMinDistance)
       continue;
-    const toro::Pose3 z = toro::Pose3::fromRollPitchYaw(u(rng), u(rng), 0.2 * u(rng), 0.1 * u(rng),
-                                                        0.1 * u(rng), 0.3 * u(rng));
+    const auto d = toro::drawLastFirst<6>(u, rng);
+    const toro::Pose3 z =
+        toro::Pose3::fromRollPitchYaw(d[0], d[1], 0.2 * d[2], 0.1 * d[3], 0.1 * d[4], 0.3 * d[5]);
     r.graph.addConstraint(toro::Constraint{r.graph.node(a).id, r.graph.node(b).id, z, info});
     ++k;
   }

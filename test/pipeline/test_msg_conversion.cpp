@@ -8,6 +8,7 @@
 
 #include "toro_ros/core/metrics.h"
 #include "toro_ros/core/pose_graph.h"
+#include "toro_ros/core/random_draws.h"
 #include "toro_ros/pipeline/msg_conversion.h"
 
 using namespace toro_ros;
@@ -246,9 +247,10 @@ TEST(MsgConversion, AnyCovarianceGivesAPositiveDefiniteInformation) {
     for (int i = 0; i < 6; ++i)
       for (int j = i + 1; j < 6; ++j) cov(i, j) = cov(j, i) = 1.2 * u(rng) * std::sqrt(cov(i, i) * cov(j, j));
     for (int k = 0; k < 3; ++k)
-      if (pick(rng) < 0.2)
-        cov(static_cast<int>(6 * pick(rng)) % 6, static_cast<int>(6 * pick(rng)) % 6) =
-            specials[trial % kSpecials];
+      if (pick(rng) < 0.2) {
+        const auto at = toro::drawLastFirst<2>(pick, rng);
+        cov(static_cast<int>(6 * at[0]) % 6, static_cast<int>(6 * at[1]) % 6) = specials[trial % kSpecials];
+      }
     const InformationResult r = informationFromCovariance(cov, DefaultStddev{});
     ASSERT_TRUE(r.information.allFinite()) << "trial " << trial;
     ASSERT_EQ(r.information, r.information.transpose()) << "trial " << trial;

@@ -16,6 +16,7 @@
 #include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/graph_io.h"
 #include "toro_ros/core/planar.h"
+#include "toro_ros/core/random_draws.h"
 #include "toro_ros/pipeline/pipeline.h"
 
 using namespace toro_ros;
@@ -57,9 +58,9 @@ UnevenFloor makeUnevenFloor() {
   pairs.emplace_back(0, u.s.odometry.size() - 1);  // back at the start
   for (const auto& [i, j] : pairs) {
     LoopClosure lc = trueLoopClosure(u.s, i, j);
-    lc.from_T_to =
-        poseToMsg(poseFromMsg(lc.from_T_to) *
-                  toro::Pose3::fromRollPitchYaw(0, 0, 0.02 * n(rng), 0.02 * n(rng), 0.02 * n(rng), 0));
+    const auto d = toro::drawLastFirst<3>(n, rng);
+    lc.from_T_to = poseToMsg(poseFromMsg(lc.from_T_to) *
+                             toro::Pose3::fromRollPitchYaw(0, 0, 0.02 * d[0], 0.02 * d[1], 0.02 * d[2], 0));
     for (int k : {14, 21, 28}) lc.covariance[k] = 0.0;  // z, roll, pitch "not measured"
     u.loop_closures.push_back(lc);
   }
