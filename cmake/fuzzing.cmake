@@ -6,9 +6,10 @@
 # serialisation and message types); the others link only the core.
 option(TORO_BUILD_FUZZERS "Build libFuzzer targets (needs clang)" OFF)
 if(TORO_BUILD_FUZZERS)
-  # libFuzzer's coverage feedback in the libraries the targets exercise.  Only there: the same
-  # build (scripts/sanitize.sh's ASan+UBSan build, which scripts/test.sh's fuzz stage reuses) runs
-  # the test suite, and its own code need not pay the counters.
+  # libFuzzer's coverage feedback in the libraries the targets exercise.  Not in a build that also
+  # runs the test suite: its comparison tracing made the ASan+UBSan suite's numeric tests 1.5-2.5
+  # times slower (session 38: test_innovation_support 104 -> 261 s), more than a build of their
+  # own costs (bench/ci_timing.md).
   target_compile_options(toro_core PRIVATE -fsanitize=fuzzer-no-link)
   target_compile_options(toro_pipeline PRIVATE -fsanitize=fuzzer-no-link)
 endif()

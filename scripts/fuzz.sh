@@ -7,9 +7,6 @@
 # (-O1 -gline-tables-only): quick to compile, and fast enough that a 20 s run does ~10^4 inputs.
 # Without precompiled headers (-DTORO_PRECOMPILED_HEADERS=OFF): this build checks that the
 # libraries' sources include what they use, which the pre-included sets of the other builds hide.
-# A TORO_FUZZ_BUILD_DIR already configured with -DTORO_BUILD_FUZZERS=ON is used as it is
-# configured: scripts/test.sh points it at scripts/sanitize.sh's clang ASan+UBSan build, which built
-# the targets with the same flags, so the fuzz stage compiles nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds="${1:-60}"
@@ -18,9 +15,7 @@ export PYENV_VERSION=system ROS_HOSTNAME=localhost
 command -v clang++ >/dev/null || { echo "fuzz.sh: clang++ not found (scripts/install_deps.sh installs it)" >&2; exit 2; }
 start=$(date +%s)
 mkdir -p "$build" out/fuzz
-if grep -qx 'TORO_BUILD_FUZZERS:BOOL=ON' "$build/CMakeCache.txt" 2>/dev/null; then
-  echo "fuzz.sh: using the fuzz targets of $build as it is configured"
-elif ! cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
+if ! cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
     -DTORO_SANITIZER=address -DTORO_BUILD_FUZZERS=ON \
     -DCATKIN_ENABLE_TESTING=OFF -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 \

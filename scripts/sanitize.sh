@@ -28,10 +28,11 @@
 # Suppressions (third-party code only, one comment per entry): test/sanitizers/*.supp.
 #
 # Cost (bench/ci_timing.md): compiling is most of it, so the builds are made for build time:
-# -O1 (about half the compile time of -O2 under the sanitizers; the libraries at -O2 made the
-# slowest test, test_loop_closure_gate, only ~20 % faster, which the longer build ate up), -g1 (line
-# tables: enough for symbolised stack traces, a third of the object size of -g), and only the
-# targets the tests need (no benchmarks, no tool that no test runs).  No precompiled headers
+# clang (a third of gcc's build time here, below), -O1 (about half the compile time of -O2 under
+# the sanitizers; the libraries at -O2 made the slowest test, test_loop_closure_gate, only ~20 %
+# faster, which the longer build ate up), line tables only (enough for symbolised stack traces, a
+# third of the object size of -g), and only the targets the tests need (no benchmarks, no tool that
+# no test runs).  No precompiled headers
 # (cmake/precompiled_headers.cmake): with them the fresh-clone run of session 37 took longer here
 # (ASan+UBSan build 1188 -> 1232 s, TSan build 261 -> 367 s: the TSan stage then also builds the
 # test that makes the shared set, and instrumented code generation, not parsing, dominates).
@@ -44,30 +45,21 @@ export PYENV_VERSION=system ROS_HOSTNAME=localhost
 # tests run in.
 # Compiler: clang by default (TORO_SANITIZER_COMPILER=gcc for gcc).  Why: on the 2-core CI machine
 # of session 38 clang built the whole ASan+UBSan suite in 391 s where gcc took 1,188-1,232 s
-# (bench/ci_timing.md), and its ASan build also gives the fuzz targets (libFuzzer is clang's), so
-# the fuzz stage builds nothing of its own.  The normal build stays on gcc: two compilers check the
-# code.
+# (bench/ci_timing.md).  The normal build stays on gcc, so two compilers check the code (clang's
+# warnings found two unused variables).
 SANITIZER_COMPILER="${TORO_SANITIZER_COMPILER:-clang}"
-FUZZ_TARGETS=""
 case "${SANITIZER_COMPILER}" in
-  gcc)
-    SANITIZER_FLAGS="-O1 -g1 -DNDEBUG"
-    COMPILERS=(-DCMAKE_C_COMPILER=gcc -DCMAKE_CXX_COMPILER=g++ -DTORO_BUILD_FUZZERS=OFF)
-    ;;
-  clang)
-    SANITIZER_FLAGS="-O1 -gline-tables-only -DNDEBUG"
-    COMPILERS=(-DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++)
-    for src in "${REPO_ROOT}"/test/fuzz/fuzz_*.cpp; do FUZZ_TARGETS+=" $(basename "${src}" .cpp)"; done
-    ;;
+  gcc) SANITIZER_FLAGS="-O1 -g1 -DNDEBUG" COMPILERS=(-DCMAKE_C_COMPILER=gcc -DCMAKE_CXX_COMPILER=g++) ;;
+  clang) SANITIZER_FLAGS="-O1 -gline-tables-only -DNDEBUG" COMPILERS=(-DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++) ;;
   *) echo "sanitize.sh: TORO_SANITIZER_COMPILER must be gcc or clang" >&2; exit 2 ;;
 esac
 
 absolute() { [[ "$1" = /* ]] && printf '%s' "$1" || printf '%s/%s' "${REPO_ROOT}" "$1"; }
 
-# configureAndBuild <build dir> <sanitizer> <targets> [cmake options...]
+# configureAndBuild <build dir> <sanitizer> <targets>
 configureAndBuild() {
   mkdir -p "$1"
-  cmake -S "${REPO_ROOT}" -B "$1" "${COMPILERS[@]}" "${@:4}" -DTORO_SANITIZER="$2" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  cmake -S "${REPO_ROOT}" -B "$1" "${COMPILERS[@]}" -DTORO_SANITIZER="$2" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="${SANITIZER_FLAGS}" -DCMAKE_C_FLAGS_RELWITHDEBINFO="${SANITIZER_FLAGS}" \
     -DTORO_PRECOMPILED_HEADERS=OFF \
     -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 >"$1/sanitize-configure.log" 2>&1 </dev/null ||
@@ -98,12 +90,7 @@ runAddress() {
   echo "sanitize.sh: ASan+UBSan build of every test in ${build}"
   # `tests` builds every test executable and, through their dependencies, the node, tools and the
   # sample bag the tests run; the messages' Python side is for the rostests' Python helpers.
-  # With clang also the libFuzzer targets, for scripts/fuzz.sh (TORO_FUZZ_BUILD_DIR, as test.sh runs it).
-  if [[ -n "${FUZZ_TARGETS}" ]]; then
-    configureAndBuild "${build}" address "tests toro_ros_generate_messages${FUZZ_TARGETS}" -DTORO_BUILD_FUZZERS=ON
-  else
-    configureAndBuild "${build}" address "tests toro_ros_generate_messages"
-  fi
+  configureAndBuild "${build}" address "tests toro_ros_generate_messages"
   stageTime "ASan+UBSan build" "${start}"
   rm -rf "${build}/sanitizer-reports" && mkdir -p "${build}/sanitizer-reports"
   local common="log_path=${build}/sanitizer-reports/report"

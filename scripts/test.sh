@@ -7,8 +7,7 @@
 #      catkin_test_results and catkin_make install in a fresh workspace under a temporary directory;
 #   3. the sanitizer stages (scripts/sanitize.sh all): the whole test suite in an ASan+UBSan build,
 #      the worker thread tests in a TSan build; any failing test or sanitizer report fails it;
-#   4. the fuzz stage (scripts/fuzz.sh): every libFuzzer target for TORO_TEST_FUZZ_SEC seconds,
-#      built by stage 3's ASan+UBSan build (clang) when that ran, else in a build of its own;
+#   4. the fuzz stage (scripts/fuzz.sh): every libFuzzer target for TORO_TEST_FUZZ_SEC seconds;
 #   5. ctest of the normal build, the LAST runner: when everything before passed, the script's exit
 #      code is ctest's and its closing line ("100% tests passed, 0 tests failed out of N") is the
 #      verdict.  A failing stage 2, 3 or 4 stops the script there with "test.sh: ... FAILED" and a
@@ -58,10 +57,6 @@ else
   echo "test.sh: sanitizer stages skipped (TORO_TEST_SANITIZERS=0)"
 fi
 if [[ "${FUZZ_SEC}" != 0 ]]; then
-  # The sanitizer stage's ASan+UBSan build (clang) has the fuzz targets built: used as it is.
-  if [[ "${SANITIZERS}" != 0 && "${TORO_SANITIZER_COMPILER:-clang}" == clang ]]; then
-    export TORO_FUZZ_BUILD_DIR="${TORO_ASAN_BUILD_DIR:-build-asan}"
-  fi
   stage "fuzz stage (${FUZZ_SEC} s per target)" bash "${REPO_ROOT}/scripts/fuzz.sh" "${FUZZ_SEC}"
 else
   echo "test.sh: fuzz stage skipped (TORO_TEST_FUZZ_SEC=0)"
