@@ -28,7 +28,7 @@
 # Suppressions (third-party code only, one comment per entry): test/sanitizers/*.supp.
 #
 # Cost (bench/ci_timing.md): compiling is most of it, so the builds are made for build time:
-# clang (a third of gcc's build time here, below), -O1 (about half the compile time of -O2 under
+# clang (three quarters of gcc's build time here, below), -O1 (about half the compile time of -O2 under
 # the sanitizers; the libraries at -O2 made the slowest test, test_loop_closure_gate, only ~20 %
 # faster, which the longer build ate up), line tables only (enough for symbolised stack traces, a
 # third of the object size of -g), and only the targets the tests need (no benchmarks, no tool that
@@ -44,8 +44,8 @@ export PYENV_VERSION=system ROS_HOSTNAME=localhost
 # Sanitizer builds: -O1 and line tables only (see above); NDEBUG as in the Release build the same
 # tests run in.
 # Compiler: clang by default (TORO_SANITIZER_COMPILER=gcc for gcc).  Why: on the 2-core CI machine
-# of session 38 clang built the whole ASan+UBSan suite in 391 s where gcc took 1,188-1,232 s
-# (bench/ci_timing.md).  The normal build stays on gcc, so two compilers check the code (clang's
+# clang built the whole ASan+UBSan suite in 394 s where gcc took 531 s (session 38, the same
+# machine and hour, nothing else running; bench/ci_timing.md).  The normal build stays on gcc, so two compilers check the code (clang's
 # warnings found two unused variables).
 SANITIZER_COMPILER="${TORO_SANITIZER_COMPILER:-clang}"
 case "${SANITIZER_COMPILER}" in

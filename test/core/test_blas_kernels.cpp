@@ -118,7 +118,9 @@ TEST(BlasKernels, TheUsersCoreTypeIsKept) {
   if (openBlasCore().empty()) GTEST_SKIP() << "the BLAS of this process is not OpenBLAS";
   // Prescott is the generic fallback this module replaces; asked for by the user, it stays.
   EXPECT_EQ(kernelsInAChild("Prescott"), "Prescott");
-  if (cpuVectorFeatures().avx2_fma) EXPECT_EQ(kernelsInAChild("Haswell"), "Haswell");
+  if (cpuVectorFeatures().avx2_fma) {
+    EXPECT_EQ(kernelsInAChild("Haswell"), "Haswell");
+  }
 }
 
 TEST(BlasKernels, ChildProcess) {
