@@ -45,8 +45,8 @@ export PYENV_VERSION=system ROS_HOSTNAME=localhost
 # tests run in.
 # Compiler: clang by default (TORO_SANITIZER_COMPILER=gcc for gcc).  Why: on the 2-core CI machine
 # clang built the whole ASan+UBSan suite in 394 s where gcc took 531 s (session 38, the same
-# machine and hour, nothing else running; bench/ci_timing.md).  The normal build stays on gcc, so two compilers check the code (clang's
-# warnings found two unused variables).
+# machine and hour, nothing else running; bench/ci_timing.md).  The normal build stays on gcc, so
+# two compilers check the code (clang's warnings found two unused variables).
 SANITIZER_COMPILER="${TORO_SANITIZER_COMPILER:-clang}"
 case "${SANITIZER_COMPILER}" in
   gcc) SANITIZER_FLAGS="-O1 -g1 -DNDEBUG" COMPILERS=(-DCMAKE_C_COMPILER=gcc -DCMAKE_CXX_COMPILER=g++) ;;

@@ -479,6 +479,12 @@ double MapOptimizer::innovationThreshold(const FinishOutcome& outcome) const {
   return toro::chiSquareQuantile(kSupportConfidence, dof) * std::min(1.0, variance_factor);
 }
 
+std::size_t MapOptimizer::calibrationSamplesKnown() const {
+  if (calibration_structure_ != structure_) return 0;
+  return static_cast<std::size_t>(std::count_if(accepted_innovation_.begin(), accepted_innovation_.end(),
+                                                [](double v) { return !std::isnan(v); }));
+}
+
 double MapOptimizer::calibratedInnovationThreshold() const {
   if (calibration_structure_ != structure_) return -1.0;
   std::vector<double> known;
@@ -918,9 +924,8 @@ std::vector<std::size_t> MapOptimizer::calibrationSamples(const FinishJob& job) 
   // many: the samples cost a factorisation of their own (LevenbergMarquardt::optimize), which
   // every finish of a long drive with few loop closures would pay; this way about
   // kMinCalibrationSamples / kCalibrationSamplesPerFinish finishes do.
-  const bool calibrating =
-      (calibration_structure_ != structure_ || calibration_known_ < kMinCalibrationSamples) &&
-      job.loop_closure_weight >= static_cast<double>(kMinCalibrationSamples);
+  const bool calibrating = job.loop_closure_weight >= static_cast<double>(kMinCalibrationSamples) &&
+                           calibrationSamplesKnown() < kMinCalibrationSamples;
   if (job.innovation_candidates.empty() && !calibrating) return samples;
   const std::size_t n = std::min(is_loop_closure_.size(), job.weights.size());
   for (std::size_t step = 0; step < n && samples.size() < kCalibrationSamplesPerFinish; ++step) {
@@ -953,14 +958,10 @@ bool MapOptimizer::releasePredicted(const FinishOutcome& outcome) {
   if (calibration_structure_ != structure_) {
     accepted_innovation_.clear();
     calibration_structure_ = structure_;
-    calibration_known_ = 0;
   }
   accepted_innovation_.resize(is_loop_closure_.size(), kNaN);
-  for (const auto& [c, chi2] : outcome.calibration_innovations) {
-    if (c >= accepted_innovation_.size()) continue;
-    calibration_known_ += std::isnan(accepted_innovation_[c]) ? 1 : 0;
-    accepted_innovation_[c] = chi2;
-  }
+  for (const auto& [c, chi2] : outcome.calibration_innovations)
+    if (c < accepted_innovation_.size()) accepted_innovation_[c] = chi2;
   // Never wider than the pair threshold: the variance factor is read from the loop closures that
   // count, and a few wrong ones among them (accepted before the sender's scale was learnt) raise
   // it far above the sender's scale (parking-garage seed-3 replay with 1000 random wrong ones: a

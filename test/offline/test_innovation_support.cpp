@@ -195,12 +195,10 @@ struct LapsAndExcursions {
 };
 
 // The lone loop closure (a, b) with its innovation at `ratio` times `threshold`: its measurement
-// is the map's own prediction (the optimum of `graph` without it) moved along a fixed direction,
+// is the map's own prediction (`optimum`: the graph without it, optimised) moved along a fixed direction,
 // by as much as gives that innovation (first order; checked by the caller's finish).
-toro::Constraint loneLoopClosure(const toro::PoseGraph& graph, std::size_t a, std::size_t b, double ratio,
+toro::Constraint loneLoopClosure(const toro::PoseGraph& optimum, std::size_t a, std::size_t b, double ratio,
                                  double threshold, const toro::Matrix6& information) {
-  toro::PoseGraph optimum = graph;
-  toro::LevenbergMarquardt().optimize(optimum);
   toro::Constraint c;
   c.from = static_cast<toro::NodeId>(a);
   c.to = static_cast<toro::NodeId>(b);
@@ -210,7 +208,8 @@ toro::Constraint loneLoopClosure(const toro::PoseGraph& graph, std::size_t a, st
     return predicted * toro::Pose3::fromRollPitchYaw(s, s, 0, 0, 0, 0.1 * s);
   };
   c.measurement = moved(0.1);
-  const double at_unit = toro::LevenbergMarquardt().optimize(optimum, {}, {c}).innovation_chi2.at(0);
+  toro::PoseGraph finished = optimum;
+  const double at_unit = toro::LevenbergMarquardt().optimize(finished, {}, {c}).innovation_chi2.at(0);
   c.measurement = moved(0.1 * std::sqrt(ratio * threshold / at_unit));
   return c;
 }
@@ -250,9 +249,12 @@ LapsAndExcursions make(std::uint32_t seed) {
   const toro::Matrix6 information = s.graph.constraints().back().information;
   const double threshold = toro::chiSquareQuantile(0.99, 6);  // the model's, 6 degrees of freedom
   LapsAndExcursions out;
-  const toro::Constraint within = loneLoopClosure(graph, first_start, first_end, 1.5, threshold, information);
+  toro::PoseGraph optimum = graph;
+  toro::LevenbergMarquardt().optimize(optimum);
+  const toro::Constraint within =
+      loneLoopClosure(optimum, first_start, first_end, 1.5, threshold, information);
   const toro::Constraint beyond =
-      loneLoopClosure(graph, second_start, second_end, 2.5, threshold, information);
+      loneLoopClosure(optimum, second_start, second_end, 2.5, threshold, information);
   out.graph = graph;
   out.within_tail = out.graph.numConstraints();
   out.graph.addConstraint(within);
@@ -289,12 +291,12 @@ TEST(InnovationSupport, ALoneRightLoopClosureInTheSendersOwnTailIsReleasedWithin
         if (ends(d.from, d.to) == e) return d.weight;
       return 1.0;
     };
-    std::size_t laps_held = 0;
-    for (const DownWeightedLoopClosure& d : p.status().down_weighted) laps_held += d.weight < 0.5;
+    std::size_t held = 0;
+    for (const DownWeightedLoopClosure& d : p.status().down_weighted) held += d.weight < 0.5;
     std::printf(
         "weights of the lone ones: %.3g and %.3g; loop closures held in all %zu; released by their "
         "innovation %llu\n",
-        weightOf(s.within_tail), weightOf(s.beyond_bound), laps_held,
+        weightOf(s.within_tail), weightOf(s.beyond_bound), held,
         static_cast<unsigned long long>(p.counters().loop_closures_released_predicted));
     EXPECT_GE(weightOf(s.within_tail), 0.5);
     EXPECT_LT(weightOf(s.beyond_bound), 0.5);

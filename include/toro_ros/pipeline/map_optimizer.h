@@ -265,6 +265,8 @@ class MapOptimizer {
   // The release test of a held loop closure spanning more than the support window reads it
   // (within kMaxCalibratedWidening of its model threshold).
   double calibratedInnovationThreshold() const;
+  // Accepted loop closures with a sampled innovation (accepted_innovation_ not NaN) for structure_.
+  std::size_t calibrationSamplesKnown() const;
   // False (and said once) when constraints leave axes unmeasured: the background finish is off.
   bool finishDetermined();
   // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints.
@@ -436,7 +438,6 @@ class MapOptimizer {
   // that sampled it (NaN: none), for calibratedInnovationThreshold; valid for calibration_structure_.
   std::vector<double> accepted_innovation_;
   std::uint64_t calibration_structure_ = 0;
-  std::size_t calibration_known_ = 0;      // entries of accepted_innovation_ that are not NaN
   std::size_t calibration_cursor_ = 0;     // the constraint calibrationSamples looks at next (round robin)
   double innovation_tested_weight_ = 0.0;  // loopClosureWeight at the last batch
   bool held_since_finish_ = false;         // a loop closure was held since the last finish was taken
