@@ -1441,6 +1441,9 @@ void MapOptimizer::clear() {
   finish_off_reason_.clear();
   innovation_tested_.clear();
   innovation_tested_weight_ = 0.0;
+  // From the first loop closure again, as in a new optimiser: a map loaded into a used pipeline
+  // then samples the same loop closures as one loaded into a fresh pipeline (the offline runner).
+  calibration_cursor_ = 0;
   held_since_finish_ = false;
   finish_after_release_ = false;
   from_scratch_due_ = false;

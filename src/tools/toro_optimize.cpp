@@ -427,10 +427,12 @@ int optimise(CliOptions o) {
   toro::PoseGraph estimate = graph;
   RunLog log;
   Measures before;
+  bool started = false;  // the first start (setup time, "before") was seen
   // Times printed are the optimiser's: setup (tree, initial guess) and callback time excluded.
   const auto on_iteration = [&](const toro::OptimizeIteration& it) {
     const Clock::time_point measure_start = Clock::now();
-    if (it.phase == toro::OptimizePhase::kStart) {
+    if (it.phase == toro::OptimizePhase::kStart && !started) {
+      started = true;
       log.setup_seconds = it.seconds;
       before = measure(*it.estimate);
       if (!o.quiet) {
@@ -439,7 +441,10 @@ int optimise(CliOptions o) {
       }
     } else if (!o.quiet) {
       const double seconds = it.seconds - log.setup_seconds - log.measure_seconds;
-      if (it.phase == toro::OptimizePhase::kToro) {
+      if (it.phase == toro::OptimizePhase::kStart) {
+        // --robust tries more than one start: each begins with a line of its own.
+        printLine("start", 0, seconds, measure(*it.estimate));
+      } else if (it.phase == toro::OptimizePhase::kToro) {
         printLine("tree", it.iteration, seconds, measure(*it.estimate));
       } else {
         printFinishLine(it, seconds);

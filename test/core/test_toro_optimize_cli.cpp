@@ -305,18 +305,20 @@ TEST_F(ToroOptimizeCli, BadArgumentsAndMissingFile) {
   EXPECT_EQ(r.out.rfind("usage: toro_optimize", 0), 0u);
 }
 
+// smallGrid3D with two wrong loop closures appended: far-apart nodes claimed to be in one place,
+// turned upside down, with confident covariances.
+void writeSmallGridWithWrongLoopClosures(const fs::path& path) {
+  std::ifstream in(kSmallGrid);
+  std::ofstream out(path);
+  out << in.rdbuf();
+  out << "EDGE_SE3:QUAT 3 120 0 0 0 1 0 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 400 0 0 400 0 400\n";
+  out << "EDGE_SE3:QUAT 7 98 0.5 0 0 0 1 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 400 0 0 400 0 400\n";
+}
+
 TEST_F(ToroOptimizeCli, RobustRejectsAddedWrongLoopClosuresAndWritesThem) {
-  // smallGrid3D with two wrong loop closures appended: far-apart nodes claimed to be in one place,
-  // turned upside down, with confident covariances.
   const toro::PoseGraph g = toro::readGraph(kSmallGrid);
   const fs::path input = dir_ / "with_wrong.g2o";
-  {
-    std::ifstream in(kSmallGrid);
-    std::ofstream out(input);
-    out << in.rdbuf();
-    out << "EDGE_SE3:QUAT 3 120 0 0 0 1 0 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 400 0 0 400 0 400\n";
-    out << "EDGE_SE3:QUAT 7 98 0.5 0 0 0 1 0 0 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 400 0 0 400 0 400\n";
-  }
+  writeSmallGridWithWrongLoopClosures(input);
   const fs::path rejected = dir_ / "rejected.txt";
   const fs::path robust_out = dir_ / "robust.g2o", plain_out = dir_ / "plain.g2o";
   Result r = run("-q --robust --rejected-out " + rejected.string() + " -o " + robust_out.string() + " " +
@@ -348,4 +350,48 @@ TEST_F(ToroOptimizeCli, RobustRejectsAddedWrongLoopClosuresAndWritesThem) {
   r = run("--robust-width -1 " + kSmallGrid);
   EXPECT_EQ(r.exit_code, 2);
   (void)clean;
+}
+
+TEST_F(ToroOptimizeCli, RobustRunPrintsOneTimelineFromTheOdometryStart) {
+  // --robust tries more than one start here (the wrong loop closures make the first one's map
+  // suspect).  The report is still one run: one header, times from the first start on, never
+  // negative or going back, and "before" is the robust initial guess (the odometry chained), not
+  // the map of a later start.  (Setup and "before" were once taken from the last start: the
+  // lines after it began below zero and the first start's work was left out of the time.)
+  const fs::path input = dir_ / "with_wrong.g2o";
+  writeSmallGridWithWrongLoopClosures(input);
+  const Result r = run("--robust " + input.string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(linesStartingWith(r.out, "phase ").size(), 1u) << r.out;
+  const std::vector<std::string> starts = linesStartingWith(r.out, "start ");
+  ASSERT_GE(starts.size(), 2u) << r.out;  // the dead-reckoning start ran as well
+  double previous = 0.0;
+  std::size_t timed = 0;
+  std::istringstream lines(r.out);
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (line.rfind("start ", 0) != 0 && line.rfind("tree ", 0) != 0 && line.rfind("finish ", 0) != 0)
+      continue;
+    std::istringstream fields(line);
+    std::string phase;
+    double iteration = 0, seconds = 0;
+    fields >> phase >> iteration >> seconds;
+    EXPECT_GE(seconds, previous) << line;
+    previous = seconds;
+    ++timed;
+  }
+  EXPECT_GT(timed, starts.size());
+  // The optimisation time covers every line's.
+  EXPECT_GE(numberAfter(r.out, "time", "optimisation"), previous - 1e-6) << r.out;
+  const Result odometry = run("-q --mode toro -i 0 --initial-guess odometry " + input.string());
+  ASSERT_EQ(odometry.exit_code, 0) << odometry.err;
+  const double odometry_chi2 = numberAfter(odometry.out, "before", "g2o chi2");
+  EXPECT_NEAR(numberAfter(r.out, "before", "g2o chi2"), odometry_chi2, 1e-9 * odometry_chi2) << r.out;
+  // The first start line is that same map.
+  std::istringstream first(starts.front());
+  std::string phase;
+  double iteration = 0, seconds = 0, chi2 = 0;
+  first >> phase >> iteration >> seconds >> chi2;
+  EXPECT_EQ(seconds, 0.0);
+  EXPECT_NEAR(chi2, odometry_chi2, 1e-7 * odometry_chi2);
 }
