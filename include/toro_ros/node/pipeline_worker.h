@@ -72,6 +72,10 @@ class PipelineWorker {
   void stop();
   Pipeline& pipeline();  // only after stop()
 
+  // Batches in a row after which a due finish starts even though input is waiting (before, the
+  // input goes first: startFinishIfDue).
+  static constexpr int kMaxFinishDeferrals = 8;
+
  private:
   using Item = std::variant<PipelineMessage, Command>;
   void loop();
@@ -93,6 +97,7 @@ class PipelineWorker {
   std::thread finish_thread_;
   std::atomic<bool> finish_running_{false};
   std::atomic<bool> cancel_finish_{false};
+  int finish_deferrals_ = 0;  // batches a due finish has waited for queued input (worker thread only)
   // When the newest odometry message was fed (worker thread only): the pipeline's schedule clock
   // runs on from it while odometry is quiet (Pipeline::setOdometryQuietSec).
   std::optional<std::chrono::steady_clock::time_point> last_odometry_fed_;
