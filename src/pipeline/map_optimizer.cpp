@@ -279,10 +279,14 @@ FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled
   out.sequence = job.sequence;
   out.structure = job.structure;
   out.stamp = job.stamp;
-  out.constraints = job.graph.numConstraints();
+  out.constraints = job.graph ? job.graph->numConstraints() : 0;
   out.loop_closure_weight = job.loop_closure_weight;
+  toro::PoseGraph g;
   try {
-    toro::PoseGraph& g = job.graph;
+    if (!job.graph) throw std::invalid_argument("the job has no graph");
+    // Our own copy, and the shared one let go at once: the map keeps it in step for the next job.
+    g = *job.graph;
+    job.graph.reset();
     if (job.weights.size() != g.numConstraints()) throw std::invalid_argument("one weight per constraint expected");
     std::vector<toro::Constraint> candidates;
     for (std::size_t c : job.innovation_candidates)
@@ -368,7 +372,7 @@ FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled
   } catch (const std::exception& e) {
     out.error = std::string("finish failed: ") + e.what();
   }
-  out.graph = std::move(job.graph);
+  out.graph = std::move(g);
   return out;
 }
 
@@ -1129,13 +1133,33 @@ void MapOptimizer::takeFromScratch(FinishJob* job) {
 FinishJob MapOptimizer::makeFinishJob(unsigned iterations) const {
   FinishJob job;
   job.structure = structure_;
-  job.graph = optimizer_.graph();
   job.weights = optimizer_.weights();
   if (iterations > 0) job.options.max_iterations = iterations;
   // The weights above are the robust part: the finish itself is plain least squares.
   job.options.robust = toro::RobustOptions{};
   if (!toro::cholmodAvailable()) job.options.linear_solver = toro::LinearSolverType::kSimplicialLDLT;
   return job;
+}
+
+std::shared_ptr<const toro::PoseGraph> MapOptimizer::finishGraph() {
+  const toro::PoseGraph& g = optimizer_.graph();
+  toro::PoseGraph* mirror = finish_graph_.get();
+  // In step when only nodes and constraints were added since (structure_ changes with every
+  // removal or replacement) and no job holds it any more: a job lets it go before its merge is
+  // posted (runFinishJob), so the worker sees that through the queue.
+  if (!mirror || finish_graph_.use_count() != 1 || finish_graph_structure_ != structure_ ||
+      mirror->numNodes() > g.numNodes() || mirror->numConstraints() > g.numConstraints() ||
+      mirror->fixedNodes() != g.fixedNodes() || mirror->dimension() != g.dimension()) {
+    finish_graph_ = std::make_shared<toro::PoseGraph>(g);
+    finish_graph_structure_ = structure_;
+    return finish_graph_;
+  }
+  const std::size_t nodes = mirror->numNodes();
+  for (std::size_t v = 0; v < nodes; ++v) mirror->setPoseAt(v, g.node(v).pose);
+  for (std::size_t v = nodes; v < g.numNodes(); ++v) mirror->addNode(g.node(v).id, g.node(v).pose);
+  for (std::size_t c = mirror->numConstraints(); c < g.numConstraints(); ++c)
+    mirror->addConstraint(g.constraints()[c]);
+  return finish_graph_;
 }
 
 OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
@@ -1150,6 +1174,7 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
   bool released = false, last_round_released = false;
   for (std::size_t round = 0; round < kMaxFinishRounds; ++round) {
     FinishJob job = makeFinishJob(iterations);
+    job.graph = finishGraph();
     job.loop_closure_weight = loopClosureWeight(job.weights);
     job.innovation_candidates = innovationCandidates(job);
     job.calibration_samples = calibrationSamples(job);
@@ -1284,6 +1309,7 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
     if (within(std::max(options_.finish_min_interval_sec, kHeldTestIntervalSec))) return std::nullopt;
   }
   FinishJob job = makeFinishJob(static_cast<unsigned>(options_.finish_max_iterations));
+  job.graph = finishGraph();
   job.options.relative_decrease_tolerance = kBackgroundRelativeDecrease;
   job.sequence = ++finish_sequence_;
   job.loop_closure_weight = loopClosureWeight(job.weights);
@@ -1447,6 +1473,7 @@ void MapOptimizer::clear() {
   held_since_finish_ = false;
   finish_after_release_ = false;
   from_scratch_due_ = false;
+  finish_graph_.reset();
   // A finish still out belongs to the old graph: its merge is dropped by the structure.
   ++structure_;
   ++revision_;

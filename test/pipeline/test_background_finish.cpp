@@ -81,6 +81,85 @@ TEST(BackgroundFinish, MergedFinishIsTheOptimumAndTorosPassWasNot) {
   EXPECT_FALSE(p.takeFinishJob());  // nothing new since
 }
 
+// Exactly: ids, poses, constraints (ends, measurement, information, kind), fixed nodes.
+void expectSameGraph(const toro::PoseGraph& a, const toro::PoseGraph& b) {
+  ASSERT_EQ(a.numNodes(), b.numNodes());
+  ASSERT_EQ(a.numConstraints(), b.numConstraints());
+  for (std::size_t v = 0; v < a.numNodes(); ++v) {
+    ASSERT_EQ(a.node(v).id, b.node(v).id) << v;
+    ASSERT_EQ(a.node(v).pose.translation(), b.node(v).pose.translation()) << v;
+    ASSERT_EQ(a.node(v).pose.rotation().coeffs(), b.node(v).pose.rotation().coeffs()) << v;
+  }
+  for (std::size_t c = 0; c < a.numConstraints(); ++c) {
+    const toro::Constraint &x = a.constraints()[c], &y = b.constraints()[c];
+    ASSERT_EQ(x.from, y.from) << c;
+    ASSERT_EQ(x.to, y.to) << c;
+    ASSERT_EQ(x.measurement.translation(), y.measurement.translation()) << c;
+    ASSERT_EQ(x.measurement.rotation().coeffs(), y.measurement.rotation().coeffs()) << c;
+    ASSERT_EQ(x.information, y.information) << c;
+    ASSERT_EQ(x.kind, y.kind) << c;
+  }
+  EXPECT_EQ(a.fixedNodes(), b.fixedNodes());
+}
+
+// A job's graph is kept in step with the map between jobs (appended to, poses set) instead of
+// copied in the worker: it must be the map's, exactly, whether kept in step or copied afresh
+// (after a reset, or while an earlier job still holds it), and the finishes must end where they
+// would on a copy.
+TEST(BackgroundFinish, AJobsGraphIsTheMapsWhetherKeptInStepOrCopiedAfresh) {
+  const DriftScenario sc = makeDriftingSquare(3);
+  const std::size_t lap = sc.odometry.size() / 3;
+  Pipeline p(finishOptions());
+  std::size_t jobs = 0, kept_in_step = 0;
+  const toro::PoseGraph* last = nullptr;
+  const auto finishIfDue = [&] {
+    std::optional<FinishJob> job = p.takeFinishJob();
+    if (!job) return;
+    ++jobs;
+    ASSERT_TRUE(job->graph);
+    expectSameGraph(*job->graph, p.graph());
+    kept_in_step += job->graph.get() == last;
+    last = job->graph.get();
+    // The same finish on a copy made here ends on the same bits.
+    FinishJob copy = *job;
+    copy.graph = std::make_shared<const toro::PoseGraph>(p.graph());
+    const FinishOutcome outcome = runFinishJob(std::move(*job));
+    const FinishOutcome on_copy = runFinishJob(std::move(copy));
+    ASSERT_TRUE(outcome.success) << outcome.error;
+    expectSameGraph(outcome.graph, on_copy.graph);
+    ASSERT_TRUE(p.mergeFinish(outcome));
+  };
+  for (int run = 0; run < 2; ++run) {
+    for (std::size_t i = 0; i < sc.odometry.size(); ++i) {
+      p.handleOdometry(sc.odometry[i]);
+      if (i > lap && i % 20 == 0) p.handleLoopClosure(trueLoopClosure(sc, i - lap, i));
+      if (i == 2 * lap + 7) {
+        // A wrong one: held, then left out of the finishes.
+        LoopClosure wrong = trueLoopClosure(sc, 5, i);
+        wrong.from_T_to = poseToMsg(toro::Pose3::fromRollPitchYaw(3, 2, 0, 0, 0, 1));
+        p.handleLoopClosure(wrong);
+      }
+      drain(p);
+      finishIfDue();
+      if (HasFatalFailure()) return;
+    }
+    if (run == 0) {
+      // A job still held when the next is taken: that one is copied afresh, and it is the map's.
+      std::optional<FinishJob> held = p.takeFinishJob();
+      p.handleLoopClosure(trueLoopClosure(sc, lap, 3 * lap));
+      drain(p);
+      if (held) {
+        ASSERT_TRUE(p.mergeFinish(runFinishJob(FinishJob(*held))));
+      }
+      finishIfDue();
+      p.reset("test");  // the structure changes: the next job copies afresh
+      last = nullptr;
+    }
+  }
+  EXPECT_GE(jobs, 10u);
+  EXPECT_GE(kept_in_step, jobs / 2) << jobs;  // most jobs did not copy the graph
+}
+
 TEST(BackgroundFinish, KeyframesAndLoopClosuresThatArriveDuringAFinishFollowIt) {
   const DriftScenario sc = makeDriftingSquare(3);
   Pipeline p(finishOptions());
