@@ -28,10 +28,11 @@ void PipelineWorker::stop() {
 
 void PipelineWorker::startFinishIfDue() {
   if (finish_running_) return;
-  // Input that came in meanwhile goes first: taking a job copies the whole graph (24-38 ms of the
-  // worker at 100,000 keyframes), and a loop closure queued behind it waited that long for its
-  // correction.  A revisit's loop closures come a few milliseconds apart and the first ones make a
-  // finish due, so the one that releases the revisit was nearly always the one kept waiting
+  // Input that came in meanwhile goes first: taking a job costs the worker a pass over the whole
+  // map (every pose and weight, MapOptimizer::finishGraph; a full copy of the graph once, 24-38 ms
+  // at 100,000 keyframes), and a loop closure queued behind it waits that long for its correction.
+  // A revisit's loop closures come a few milliseconds apart and the first ones make a finish due,
+  // so the one that releases the revisit was nearly always the one kept waiting
   // (bench/node_results.md, session 39).  At most kMaxFinishDeferrals batches in a row: a steady
   // stream of input cannot starve the finish.
   if (!pipeline_->finishPending()) {

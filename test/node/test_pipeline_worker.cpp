@@ -343,10 +343,10 @@ TEST(PipelineWorker, BackgroundFinishIsMergedAndPublished) {
   EXPECT_TRUE(run.errors.texts.empty());
 }
 
-// Taking a finish job copies the whole graph, so a due finish waits while input is queued (a
-// revisit's releasing loop closure came a few milliseconds after the ones that made the finish
-// due, and waited behind the copy), but only kMaxFinishDeferrals batches: here a chain of commands,
-// each queueing the next, keeps the queue from ever being empty when a batch ends.
+// Taking a finish job costs the worker a pass over the whole map, so a due finish waits while input is queued
+// (a revisit's releasing loop closure came a few milliseconds after the ones that made the finish due, and
+// waited behind the copy), but only kMaxFinishDeferrals batches: here a chain of commands, each queueing the
+// next, keeps the queue from ever being empty when a batch ends.
 TEST(PipelineWorker, ADueFinishWaitsForQueuedInputButASteadyStreamCannotStarveIt) {
   const DriftScenario sc = makeDriftingSquare();
   FinishWorker run(0.0);
