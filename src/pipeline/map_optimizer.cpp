@@ -1130,9 +1130,11 @@ void MapOptimizer::takeFromScratch(FinishJob* job) {
   if (job->from_scratch) ++counters_->finishes_from_scratch;
 }
 
-FinishJob MapOptimizer::makeFinishJob(unsigned iterations) const {
+FinishJob MapOptimizer::makeFinishJob(unsigned iterations,
+                                      std::shared_ptr<const toro::PoseGraph> graph) const {
   FinishJob job;
   job.structure = structure_;
+  job.graph = std::move(graph);
   job.weights = optimizer_.weights();
   if (iterations > 0) job.options.max_iterations = iterations;
   // The weights above are the robust part: the finish itself is plain least squares.
@@ -1173,8 +1175,7 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
   std::size_t iterations_run = 0;
   bool released = false, last_round_released = false;
   for (std::size_t round = 0; round < kMaxFinishRounds; ++round) {
-    FinishJob job = makeFinishJob(iterations);
-    job.graph = finishGraph();
+    FinishJob job = makeFinishJob(iterations, finishGraph());
     job.loop_closure_weight = loopClosureWeight(job.weights);
     job.innovation_candidates = innovationCandidates(job);
     job.calibration_samples = calibrationSamples(job);
@@ -1308,8 +1309,7 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
     // at 0.25 s the finishes that only tested them took the replay 6.4 -> 15.7 s.
     if (within(std::max(options_.finish_min_interval_sec, kHeldTestIntervalSec))) return std::nullopt;
   }
-  FinishJob job = makeFinishJob(static_cast<unsigned>(options_.finish_max_iterations));
-  job.graph = finishGraph();
+  FinishJob job = makeFinishJob(static_cast<unsigned>(options_.finish_max_iterations), finishGraph());
   job.options.relative_decrease_tolerance = kBackgroundRelativeDecrease;
   job.sequence = ++finish_sequence_;
   job.loop_closure_weight = loopClosureWeight(job.weights);

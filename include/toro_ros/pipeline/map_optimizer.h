@@ -238,9 +238,7 @@ class MapOptimizer {
   // map's own optimum is (the offline runner's optimality samples), whether or not a background
   // finish is due.  Changes nothing.
   FinishJob optimumJob() const {
-    FinishJob job = makeFinishJob(0);
-    job.graph = std::make_shared<const toro::PoseGraph>(optimizer_.graph());
-    return job;
+    return makeFinishJob(0, std::make_shared<const toro::PoseGraph>(optimizer_.graph()));
   }
 
  private:
@@ -249,8 +247,8 @@ class MapOptimizer {
   // A due full round once a finish settled the map: re-weighs the loop closures, runs no pass.
   void reweighRound();
   OptimizeResult finishNow(unsigned iterations);
-  // A job's options and weights; its graph is the caller's to set (finishGraph, or a copy).
-  FinishJob makeFinishJob(unsigned iterations) const;
+  // A job on `graph` (finishGraph, or a copy) with the map's weights.
+  FinishJob makeFinishJob(unsigned iterations, std::shared_ptr<const toro::PoseGraph> graph) const;
   // The map's graph for a job to take: finish_graph_ brought in step with the map.
   std::shared_ptr<const toro::PoseGraph> finishGraph();
   // Hands the due solve from scratch (from_scratch_due_) to `job`, and counts it.
