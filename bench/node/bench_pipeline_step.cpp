@@ -4,16 +4,18 @@
 // and after each new keyframe (what the worker makes at every revision), the whole-graph chi2
 // alone, an autosave of the whole graph, a ~save_graph over it (check + save), the ~graph message
 // and ~path + ~graph_markers (built and serialised, as published at most every
-// visualizationPeriodSec).  No ROS master, no threads.
+// visualizationPeriodSec); then, for 25 more loop closures, the merge of a background finish and
+// the snapshot after it.  No ROS master, no threads.
 // Usage: bench_pipeline_step [keyframes] [keyframes per loop closure (100; run_node_bench.sh at
 // 250 Hz makes one every 250)]
 #include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
-#include <filesystem>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -56,14 +58,35 @@ int main(int argc, char** argv) {
   std::vector<ros::Time> stamps;
   double affected_ms = 0, after_pass_snapshot_ms = 0, keyframe_snapshot_ms = 0;
   int affected_n = 0, keyframe_n = 0;
-  for (int i = 0; i < total; ++i) {
+  // Background finishes, after the figures below (so those stay comparable with earlier runs): for
+  // kMergesMeasured more loop closures a finish is taken after the pass, run here (not timed: the
+  // node runs it in a thread of its own) and merged one keyframe later (timed, with the snapshot
+  // after it: what the worker spends on a merge).
+  constexpr int kMergesMeasured = 25;
+  std::optional<FinishOutcome> finished;
+  std::vector<double> merge_ms, merge_snapshot_ms;
+  // One message (every one a keyframe), and a loop closure every loop_every.
+  const auto drive = [&](int i) {
+    const bool measured = i >= total * 3 / 4 && i < total;
     const ros::Time t(100 + 0.01 * i);
     p.handleOdometry(odometry(t, odom));
+    if (finished) {
+      const auto t0 = std::chrono::steady_clock::now();
+      const bool merged = p.mergeFinish(*finished);
+      const double ms = msSince(t0);
+      const auto t1 = std::chrono::steady_clock::now();
+      p.makeSnapshot();
+      if (merged) {
+        merge_ms.push_back(ms);
+        merge_snapshot_ms.push_back(msSince(t1));
+      }
+      finished.reset();
+    }
     {
       // The worker makes a snapshot at every revision: here every message is a keyframe.
       const auto t0 = std::chrono::steady_clock::now();
       p.makeSnapshot();
-      if (i >= total * 3 / 4) {
+      if (measured) {
         keyframe_snapshot_ms += msSince(t0);
         ++keyframe_n;
       }
@@ -83,15 +106,19 @@ int main(int argc, char** argv) {
       const double pass_ms = msSince(t0);
       const auto t1 = std::chrono::steady_clock::now();
       p.makeSnapshot();
-      if (i >= total * 3 / 4) {
+      if (measured) {
         affected_ms += pass_ms;
         after_pass_snapshot_ms += msSince(t1);
         ++affected_n;
       }
+      if (i >= total) {
+        if (std::optional<FinishJob> job = p.takeFinishJob()) finished = runFinishJob(std::move(*job));
+      }
     }
     truth = truth * toro::Pose3::fromRollPitchYaw(0.01, 0, 0, 0, 0, 2 * M_PI / lap);
     odom = odom * toro::Pose3::fromRollPitchYaw(0.0101, 0, 0, 0, 0, 1.002 * 2 * M_PI / lap);
-  }
+  };
+  for (int i = 0; i < total; ++i) drive(i);
   constexpr int kRepeats = 20;
   auto t0 = std::chrono::steady_clock::now();
   double sink = 0;
@@ -125,7 +152,6 @@ int main(int argc, char** argv) {
       if (!error.empty()) std::printf("save failed: %s\n", error.c_str());
     }
     std::filesystem::remove_all(dir);
-    for (auto* v : {&save_ms, &check_ms, &service_save_ms}) std::sort(v->begin(), v->end());
   }
   // ~graph: built from a snapshot and the pipeline, then serialised (roscpp does that in publish()).
   const std::shared_ptr<const Snapshot> snapshot = p.makeSnapshot();
@@ -167,9 +193,15 @@ int main(int argc, char** argv) {
               visualization_ms, visualization_bytes, visualization_ms * 1e3 / static_cast<double>(p.keyframes().size()));
   std::printf("~graph message: build + serialise %.2f ms, %u bytes (%.0f per keyframe) [%u]\n", graph_ms, graph_bytes,
               static_cast<double>(graph_bytes) / static_cast<double>(p.keyframes().size()), byte_sink % 2);
-  const auto median = [](const char* what, const std::vector<double>& ms) {
-    if (ms.size() == 5) std::printf("%s: median %.1f ms of 5 (min %.1f, max %.1f)\n", what, ms[2], ms.front(), ms.back());
+  for (int i = total; i < total + kMergesMeasured * loop_every; ++i) drive(i);
+  const auto median = [](const char* what, std::vector<double> ms) {
+    if (ms.empty()) return;
+    std::sort(ms.begin(), ms.end());
+    std::printf("%s: median %.1f ms of %zu (min %.1f, max %.1f)\n", what, ms[ms.size() / 2], ms.size(),
+                ms.front(), ms.back());
   };
+  median("mergeFinish of a background finish (25 more loop closures)", merge_ms);
+  median("makeSnapshot after that merge", merge_snapshot_ms);
   median("saveGraph (autosave)", save_ms);
   median("~save_graph check (GraphDirectory::forSave over the existing pair)", check_ms);
   median("~save_graph save (confined file)", service_save_ms);

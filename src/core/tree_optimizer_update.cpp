@@ -8,6 +8,7 @@
 #include <cmath>
 
 #include "toro_ros/core/finish_residuals.h"  // wrapAngle
+#include "toro_ros/core/planar.h"
 
 namespace toro {
 
@@ -133,6 +134,36 @@ void TreeOptimizer::chainInitialGuess() {
 }
 
 void TreeOptimizer::recomputePoses() { planar_ ? recomputePosesIn<Planar>() : recomputePosesIn<Spatial>(); }
+
+void TreeOptimizer::takeSolution(const PoseGraph& solution) {
+  const std::size_t solved = solution.numNodes(), n = graph_.numNodes();
+  if (solved > n)
+    throw std::invalid_argument("TreeOptimizer::takeSolution: " + std::to_string(solved) + " poses for " +
+                                std::to_string(n) + " nodes");
+  // The nodes added since, parents first (a parent is nearer the root): each one's pose is its
+  // parent's (the solution's, or placed so) times its current parameter, read from the current
+  // poses, which stay as they are until every newer one is placed.
+  newer_order_.clear();
+  for (std::size_t v = solved; v < n; ++v) newer_order_.push_back(v);
+  std::sort(newer_order_.begin(), newer_order_.end(),
+            [&](std::size_t a, std::size_t b) { return tree_.level(a) < tree_.level(b); });
+  newer_poses_.resize(n - solved);
+  for (std::size_t v : newer_order_) {
+    const std::size_t p = tree_.parent(v);
+    newer_poses_[v - solved] = p == kNone ? graph_.node(v).pose
+                                          : (p < solved ? solution.node(p).pose : newer_poses_[p - solved]) *
+                                                relativePose(graph_.node(p).pose, graph_.node(v).pose);
+  }
+  // Then as setPoses, in index order (the tree's order jumps through memory: measured slower).
+  for (std::size_t v = 0; v < n; ++v) {
+    Pose3 pose = v < solved ? solution.node(v).pose : newer_poses_[v - solved];
+    if (planar_) pose = projectToPlane(pose);
+    pose.normalize();
+    graph_.setPoseAt(v, pose);
+  }
+  parametersFromPoses();
+  recomputePoses();
+}
 
 void TreeOptimizer::updateConstraint(std::size_t c, double learning_rate) {
   planar_ ? updateConstraintIn<Planar>(c, learning_rate) : updateConstraintIn<Spatial>(c, learning_rate);

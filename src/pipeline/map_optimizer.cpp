@@ -1185,10 +1185,7 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
     if (!outcome.success) break;
     seconds += outcome.seconds;
     iterations_run += outcome.iterations;
-    std::vector<toro::Pose3> poses;
-    poses.reserve(outcome.graph.numNodes());
-    for (const toro::Node& n : outcome.graph.nodes()) poses.push_back(n.pose);
-    optimizer_.setPoses(poses);
+    optimizer_.takeSolution(outcome.graph);  // every node: nothing was added meanwhile
     optimizer_.refreshWeights();
     const bool predicted = releasePredicted(outcome);
     last_round_released = releaseAgreed() || predicted;
@@ -1360,18 +1357,9 @@ bool MapOptimizer::mergeFinish(const FinishOutcome& outcome) {
   }
   settleGate();  // a loop closure on trial is judged first: its restore copy predates the merge
   record.nodes_added_since = g.numNodes() - nodes;
-  std::vector<toro::Pose3> poses(g.numNodes());
-  for (std::size_t v = 0; v < nodes; ++v) poses[v] = outcome.graph.node(v).pose;
-  // Newer nodes keep their parameter (pose relative to the tree parent), in tree order so each
-  // parent is placed first.  Their parents may be newer too, or (through a loop closure) older.
-  const toro::ParameterTree& tree = optimizer_.tree();
-  for (std::size_t v : tree.topologicalOrder()) {
-    if (v < nodes) continue;
-    const std::size_t p = tree.parent(v);
-    poses[v] = p == toro::ParameterTree::kNone ? g.node(v).pose
-                                               : poses[p] * toro::relativePose(g.node(p).pose, g.node(v).pose);
-  }
-  optimizer_.setPoses(poses);
+  // Newer nodes keep their parameter (pose relative to the tree parent), so they move with it.
+  // Their parents may be newer too, or (through a loop closure) older.
+  optimizer_.takeSolution(outcome.graph);
   // Loop closures the passes weighed down are weighed again on the finished map, so one that the
   // map now agrees with regains its weight.  Not all of them: weighing one walks its tree path,
   // and all of them together cost more than the finish.

@@ -319,3 +319,80 @@ TEST(TreeOptimizerIncremental, SettledConstraintsTouchingANewPathAreLeftAloneUnl
   // The loop closure was applied: its residual shrank.
   EXPECT_LT(constraintChi2(opt.graph(), lc), 0.5 * constraintChi2(before, lc));
 }
+
+// takeSolution (a background finish merged): the solution's nodes take its poses and the nodes added
+// since keep their parameter, to the bit what setPoses gives for the poses built by hand (the
+// merge's former construction), in SE(3) and in SE(2).  Newer nodes include one whose tree parent
+// is older than the node before it (through a loop closure) and one whose parent is newer itself.
+TEST(TreeOptimizerIncremental, ATakenSolutionIsSetPosesWithNewerNodesMovedWithTheirParents) {
+  for (const Parameterization group : {Parameterization::kSpatial, Parameterization::kPlanar}) {
+    SCOPED_TRACE(parameterizationName(group));
+    TreeOptimizerOptions options;
+    options.parameterization = group;
+    TreeOptimizer opt(options);
+    const Pose3 step = Pose3::fromRollPitchYaw(1.0, 0.0, 0.0, 0.0, 0.0, 2 * M_PI / 20);
+    constexpr std::size_t kSolved = 30;
+    const auto addStep = [&](std::size_t v) {
+      const Pose3 noise =
+          Pose3::fromRollPitchYaw(0.02 * std::sin(3.0 * v), 0.01 * std::cos(v), 0, 0.01 * std::sin(v),
+                                  0.005 * std::cos(2.0 * v), 0.01 * std::sin(v));
+      opt.addNode(static_cast<NodeId>(v), v == 0 ? Pose3() : opt.graph().node(v - 1).pose * step * noise);
+      if (v > 0)
+        opt.addConstraint(Constraint{static_cast<NodeId>(v - 1), static_cast<NodeId>(v), step,
+                                     Matrix6::Identity(), ConstraintKind::kOdometry});
+    };
+    for (std::size_t v = 0; v < kSolved; ++v) addStep(v);
+    opt.addConstraint(Constraint{0, 20, Pose3(), Matrix6::Identity(), ConstraintKind::kLoopClosure});
+    opt.iterate();
+    // The finish's solution of the graph so far (in the plane for a planar map): every pose moved.
+    const bool planar = group == Parameterization::kPlanar;
+    PoseGraph solution = opt.graph();
+    for (std::size_t v = 0; v < kSolved; ++v)
+      solution.setPoseAt(v, solution.node(v).pose *
+                                Pose3::fromRollPitchYaw(0.003 * v, -0.002, planar ? 0.0 : 0.001,
+                                                        planar ? 0.0 : 0.01, planar ? 0.0 : 0.002, 0.004));
+    // Meanwhile: kSolved by odometry, kSolved + 1 by odometry and a loop closure to node 3 (its tree
+    // parent: the smallest id it shares a constraint with), kSolved + 2 after it.
+    addStep(kSolved);
+    opt.addNode(static_cast<NodeId>(kSolved + 1), opt.graph().node(kSolved).pose * step);
+    opt.addConstraint(Constraint{3, static_cast<NodeId>(kSolved + 1),
+                                 relativePose(opt.graph().node(3).pose, opt.graph().node(kSolved + 1).pose),
+                                 Matrix6::Identity(), ConstraintKind::kLoopClosure});
+    opt.addConstraint(Constraint{static_cast<NodeId>(kSolved), static_cast<NodeId>(kSolved + 1), step,
+                                 Matrix6::Identity(), ConstraintKind::kOdometry});
+    addStep(kSolved + 2);
+    ASSERT_EQ(opt.tree().parent(kSolved + 1), 3u);
+    ASSERT_EQ(opt.tree().parent(kSolved + 2), kSolved + 1);
+
+    std::vector<Pose3> poses(opt.graph().numNodes());
+    for (std::size_t v = 0; v < kSolved; ++v) poses[v] = solution.node(v).pose;
+    for (std::size_t v : opt.tree().topologicalOrder()) {
+      if (v < kSolved) continue;
+      const std::size_t p = opt.tree().parent(v);
+      poses[v] = poses[p] * relativePose(opt.graph().node(p).pose, opt.graph().node(v).pose);
+    }
+    TreeOptimizer by_hand = opt;
+    by_hand.setPoses(poses);
+    const PoseGraph before = opt.graph();
+    opt.takeSolution(solution);
+    for (std::size_t v = 0; v < opt.graph().numNodes(); ++v)
+      ASSERT_TRUE(samePose(opt.graph().node(v).pose, by_hand.graph().node(v).pose)) << "node " << v;
+    EXPECT_EQ(opt.chi2(), by_hand.chi2());
+    EXPECT_TRUE(opt.takeChanges().all);
+    expectChi2Agrees(opt, "takeSolution");
+    // The newer nodes moved with their parents; the solved ones are the solution's (normalised).
+    for (std::size_t v = kSolved; v < kSolved + 3; ++v) {
+      const std::size_t p = opt.tree().parent(v);
+      const Pose3 now = relativePose(opt.graph().node(p).pose, opt.graph().node(v).pose);
+      const Pose3 then = relativePose(before.node(p).pose, before.node(v).pose);
+      EXPECT_LT((now.translation() - then.translation()).norm(), 1e-12) << "node " << v;
+      EXPECT_LT(now.rotation().angularDistance(then.rotation()), 1e-12) << "node " << v;
+    }
+    EXPECT_GT((opt.graph().node(kSolved + 2).pose.translation() - before.node(kSolved + 2).pose.translation())
+                  .norm(),
+              0.01);
+    PoseGraph too_large = by_hand.graph();
+    too_large.addNode(999, Pose3());
+    EXPECT_THROW(by_hand.takeSolution(too_large), std::invalid_argument);
+  }
+}
