@@ -148,7 +148,7 @@ class TreeOptimizer {
   // relative to their tree parent, so they move with it.  The same poses and parameters, to the
   // bit, as setPoses given those poses, without the array of every pose and the breadth-first
   // order a caller needs to build them (at 100,000 keyframes 3.1 ms instead of 4.3 ms, median of
-  // 25 merges, bench_pipeline_step).
+  // 25 merges in bench_pipeline_step, timed by a temporary trace: bench/node_results.md).
   void takeSolution(const PoseGraph& solution);
 
   // Constraint indices at a node, and a constraint's dense endpoints (for path computations).
@@ -357,7 +357,7 @@ class TreeOptimizer {
   // it is remade when a full recompute needs it, not at every loop closure (it is O(nodes)).
   bool topological_dirty_ = false;
   // takeSolution's nodes added since the solution, parents first, and their poses (by index minus
-  // the solution's node count).  Members so a merge allocates nothing.
+  // the solution's node count).  Members, so merges reuse them instead of allocating.
   std::vector<std::size_t> newer_order_;
   std::vector<Pose3> newer_poses_;
   std::vector<std::size_t> new_constraints_;
