@@ -501,19 +501,4 @@ void TreeOptimizer::markAffected(std::size_t c) {
   new_constraints_.push_back(c);  // iterateAffected visits each affected constraint once
 }
 
-void TreeOptimizer::setPoses(const std::vector<Pose3>& poses) {
-  if (poses.size() != graph_.numNodes())
-    throw std::invalid_argument("TreeOptimizer::setPoses: " + std::to_string(poses.size()) + " poses for " +
-                                std::to_string(graph_.numNodes()) + " nodes");
-  for (std::size_t v = 0; v < poses.size(); ++v) {
-    Pose3 pose = planar_ ? projectToPlane(poses[v]) : poses[v];
-    pose.normalize();  // products of poses drift off the unit quaternion; the passes assume it
-    graph_.setPoseAt(v, pose);
-  }
-  parametersFromPoses();
-  // The poses are rebuilt from the parameters as after a pass, so both agree to the last bit and
-  // the group's own world state (SE(2)) follows.
-  recomputePoses();
-}
-
 }  // namespace toro

@@ -135,6 +135,26 @@ void TreeOptimizer::chainInitialGuess() {
 
 void TreeOptimizer::recomputePoses() { planar_ ? recomputePosesIn<Planar>() : recomputePosesIn<Spatial>(); }
 
+template <class PoseAt>
+void TreeOptimizer::placePoses(PoseAt pose_at) {
+  for (std::size_t v = 0; v < graph_.numNodes(); ++v) {
+    Pose3 pose = planar_ ? projectToPlane(pose_at(v)) : pose_at(v);
+    pose.normalize();  // products of poses drift off the unit quaternion; the passes assume it
+    graph_.setPoseAt(v, pose);
+  }
+  parametersFromPoses();
+  // The poses are rebuilt from the parameters as after a pass, so both agree to the last bit and
+  // the group's own world state (SE(2)) follows.
+  recomputePoses();
+}
+
+void TreeOptimizer::setPoses(const std::vector<Pose3>& poses) {
+  if (poses.size() != graph_.numNodes())
+    throw std::invalid_argument("TreeOptimizer::setPoses: " + std::to_string(poses.size()) + " poses for " +
+                                std::to_string(graph_.numNodes()) + " nodes");
+  placePoses([&](std::size_t v) -> const Pose3& { return poses[v]; });
+}
+
 void TreeOptimizer::takeSolution(const PoseGraph& solution) {
   const std::size_t solved = solution.numNodes(), n = graph_.numNodes();
   if (solved > n)
@@ -155,14 +175,9 @@ void TreeOptimizer::takeSolution(const PoseGraph& solution) {
                                                 relativePose(graph_.node(p).pose, graph_.node(v).pose);
   }
   // Then as setPoses, in index order (the tree's order jumps through memory: measured slower).
-  for (std::size_t v = 0; v < n; ++v) {
-    Pose3 pose = v < solved ? solution.node(v).pose : newer_poses_[v - solved];
-    if (planar_) pose = projectToPlane(pose);
-    pose.normalize();
-    graph_.setPoseAt(v, pose);
-  }
-  parametersFromPoses();
-  recomputePoses();
+  placePoses([&](std::size_t v) -> const Pose3& {
+    return v < solved ? solution.node(v).pose : newer_poses_[v - solved];
+  });
 }
 
 void TreeOptimizer::updateConstraint(std::size_t c, double learning_rate) {

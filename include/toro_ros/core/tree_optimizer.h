@@ -280,6 +280,10 @@ class TreeOptimizer {
   void chainInitialGuessIn();
   template <class G>
   void recomputePosesIn();
+  // setPoses and takeSolution: node v's pose pose_at(v), projected (planar) and normalised, then the
+  // parameters derived and the poses recomposed from them.
+  template <class PoseAt>
+  void placePoses(PoseAt pose_at);
   template <class G>
   void recomputePoseIn(std::size_t v);
   // The subtrees of moved_roots_ (each node once, parents first), then afterPosesMoved.
