@@ -54,21 +54,6 @@ constexpr double kBackgroundRelativeDecrease = 1e-4;
 // finished one) waits at least this long of message time since the last finish (see takeFinishJob).
 constexpr double kHeldTestIntervalSec = 1.0;
 
-// Two loop closures agree when their cycle's chi2 is within this chi-square quantile (6 or 3
-// degrees of freedom).  Why 0.99 and not 0.999: a right loop closure of a revisit has several
-// neighbours, so missing one costs little, while 1000 random wrong ones leave ~800 pairs of them
-// within the window of each other, each a chance to pass.  Measured with 1000 random wrong loop
-// closures replayed (bench/robust_offline_results.md): intel at 0.999 let one wrong pair through
-// (6.4 m RMSE), at 0.99 none (0.006 m, clean 0.003 m); kitti_00 the same as clean either way.
-constexpr double kSupportConfidence = 0.99;
-// Pairs count as support, and the support threshold adapts to the tested pairs' chi2, once this
-// many were tested; it narrows only when their low quantile is kSupportLenience times below the
-// chi-square's (real residuals are not exactly chi-square: heavier tails, correlated noise).
-constexpr std::size_t kMinPairsToAdaptSupport = 10;
-constexpr double kSupportLenience = 4.0;
-// The statistics' samples: the newest this many tests, and the quantile read (see supportThreshold).
-constexpr std::size_t kPairSample = 1000;
-constexpr double kSupportScaleQuantile = 0.2;
 // A loop closure counts as supported when this many neighbours agree with it: two wrong ones
 // agree by chance now and then (1000 random ones on intel: two sharing an end and a borrowed
 // measurement), three far more rarely; a right one of a revisit has more.
@@ -85,49 +70,6 @@ constexpr double kOdometryPowerRatio = 100.0;
 // The loop closures accepted at a wider threshold are judged again each time the learnt support
 // threshold falls below this fraction of the one they were last judged at (log-many times).
 constexpr double kRejudgeNarrowing = 0.5;
-// A loop closure weighted below this on the map's tree path is no evidence there (mapPathVerdict
-// cannot tell): its covariance would be inflated past meaning.
-constexpr double kPathLinkMinWeight = 0.1;
-// The evidence between a loop closure's two places vetoes partners' support when it contradicts the
-// loop closure: the map's tree path through accepted loop closures when there is one, the odometry
-// over the loop closure's whole span when there is not (the first revisit of a place) or when the
-// path is in doubt.  A cycle contradicts when its chi2 exceeds a lenience times the 0.99 quantile,
-// narrowed by the scale of the cycles tested so far (the low quantile of their chi2 against the
-// chi-square's, as the pair threshold: senders whose covariances are far too large) once
-// kMinPathsToScale were tested; the veto overrules evidence, so it must be beyond doubt.  A path
-// within the plain 0.99 quantile at that scale vouches for the loop closure: drift that accepted
-// loop closures corrected is not held against it.  Measured on clean replays (debug prints, every
-// arrival): right loop closures' path chi2 at most 1.2 (intel), 30 (manhattan), 0.007
-// (parking-garage), 9.7 (kitti_00), 10 to 660 times their file's low quantile; against the odometry
-// of their whole span 0.0006-0.58 (intel), 0.3-15 (manhattan), 1e-8-1.5e-5 (parking-garage), 2-8
-// (kitti_00), whatever the span, while grouped wrong ones lie 10 to 1e4 times above the right ones.
-// Neither threshold widens past the declared covariances': the first cycles tested may be a wrong
-// group's (kitti_00 replayed with grouped wrong ones: the first two groups, 20 cycles at ~5800, came
-// before any right one, and a later burst of groups outnumbered the right paths 4 to 1; each time,
-// learnt from, they widened the veto past themselves and were released).  Noise-free odometry, as
-// in simulation, gives cycles of ~1e-27: the scale is never read below kMinPathScale, or rounding
-// alone would be vetoed.  A path beyond the scaled threshold but within the declared covariances'
-// plain 0.99 quantile is in doubt, not a veto: the odometry over the span decides.  Why: the scale
-// is learnt from the paths tested so far, mostly a revisit's short ones (a few links), and a
-// long loop's path accumulates drift they do not show.  Clean replays (every arrival, debug
-// prints) vetoed right loop closures so: kitti_05's second revisit (1,660 links, chi2 ~9.5 against
-// a threshold of 1.1-2.7; 27 held to the end, 6.3 m from the optimum), kitti_02's last (5, chi2
-// 8-17 against 7.5), parking-garage's 179 paths at 1-8 times the threshold (25 held) and intel's
-// 9, each with its odometry within the odometry threshold.  Grouped wrong ones within the declared
-// quantile are still held on intel, manhattan, kitti and parking-garage (their odometry
-// contradicts them); on sphere2500 and MIT (whose wrong groups already bent the map) 38 and 60 of
-// 100 were accepted, against 20 and 50 before.
-constexpr double kPathLenience = 10.0;
-constexpr double kOdometryPathLenience = 4.0;
-constexpr std::size_t kMinPathsToScale = 10;
-constexpr double kMinPathScale = 1e-12;
-// Longer tree paths are not composed (the cost is linear in the links): so long a path is
-// compliant, so it would seldom veto.
-constexpr std::size_t kMaxPathLinks = 5000;
-// The odometry over a loop closure's span is composed once per loop closure (cached), so it may be
-// longer: it is what clears a path in doubt (kitti_02 with default keyframing: its last revisit's
-// spans are ~5,300 keyframes).  About 1 us a keyframe.
-constexpr std::size_t kMaxOdometrySpan = 20000;
 // A held loop closure is released once the map, settled without it, is within this many robust
 // widths of it and the map's own evidence between its ends (mapPathVerdict) agrees with it.  Why
 // more than one width: a right loop closure that no neighbour supports (an isolated revisit) is
@@ -389,10 +331,7 @@ MapOptimizer::MapOptimizer(const OptimizationOptions& optimization, const toro::
       robust_width_(robust.width),
       last_chi2_(kNaN),
       weighted_chi2_(kNaN),
-      odometry_(planar),
-      tested_pairs_(kPairSample, kSupportScaleQuantile),
-      tested_paths_(kPairSample, kSupportScaleQuantile),
-      tested_odometry_paths_(kPairSample, kSupportScaleQuantile),
+      evidence_(optimizer_, is_loop_closure_, planar),
       finished_chi2_(kNaN) {
   optimizer_ = toro::TreeOptimizer(optimizerOptions());
 }
@@ -502,22 +441,7 @@ double MapOptimizer::calibratedInnovationThreshold() const {
   return *at;
 }
 
-double MapOptimizer::supportThreshold() const {
-  const double dof = this->dof();
-  const double quantile = toro::chiSquareQuantile(kSupportConfidence, dof);
-  // samples() <= count(): cycles closed to rounding are counted but are no sample of the scale.
-  if (tested_pairs_.samples() < kMinPairsToAdaptSupport) return quantile;
-  // Senders whose covariances are far too large (parking-garage.g2o: residuals ~1e-4 of the
-  // declared ones) make every cycle look consistent, wrong ones too: the threshold narrows by the
-  // ratio of the tested pairs' low quantile to the chi-square's, never widens.  All tested pairs,
-  // not only those that agreed (a statistic of what passed would narrow itself), and a low
-  // quantile, not the median: wrong loop closures near each other test many pairs too (1000
-  // random ones on intel outnumber the right pairs), but their cycles are large, so the lowest
-  // fifth is the right pairs' as long as they make a fifth of all.
-  const double ratio =
-      kSupportLenience * tested_pairs_.lowQuantile() / toro::chiSquareQuantile(kSupportScaleQuantile, dof);
-  return quantile * std::min(1.0, ratio);
-}
+double MapOptimizer::supportThreshold() const { return evidence_.pairThreshold(dof()); }
 
 bool MapOptimizer::agreesWithMap(std::size_t c) const {
   // Full weight by the kernel on its own residual: applying it moves the map by no more than the
@@ -538,71 +462,34 @@ std::optional<toro::Matrix6> MapOptimizer::odometryInformation(toro::NodeId a, t
   if (!g.hasNode(a) || !g.hasNode(b)) return std::nullopt;
   const std::size_t u = g.indexOf(a), w = g.indexOf(b);
   if (std::max(u, w) != std::min(u, w) + 1) return std::nullopt;  // not one step apart
-  const std::size_t step = odometry().step(std::max(u, w));
+  const std::size_t step = evidence_.odometry().step(std::max(u, w));
   if (step == toro::kNoOdometry) return std::nullopt;
   return g.constraints()[step].information;
 }
 
-const toro::OdometryChain& MapOptimizer::odometry() {
-  const toro::PoseGraph& g = optimizer_.graph();
-  for (std::size_t v = odometry_.size(); v < g.numNodes(); ++v) {
-    std::size_t step = toro::kNoOdometry;
-    if (v > 0)
-      for (std::size_t c : optimizer_.incident(v))
-        if (!is_loop_closure_[c] && std::min(optimizer_.fromIndex(c), optimizer_.toIndex(c)) == v - 1) {
-          step = c;
-          break;
-        }
-    odometry_.append(g, step);
-  }
-  return odometry_;
-}
-
-template <class Visit>
-bool MapOptimizer::visitNeighbours(std::size_t c, Visit&& visit) {
-  return visitNeighbours(c, static_cast<std::size_t>(options_.support_window_keyframes),
-                         std::forward<Visit>(visit));
-}
-
-template <class Visit>
-bool MapOptimizer::visitNeighbours(std::size_t c, std::size_t window, Visit&& visit) {
-  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
-  const auto near = [window](std::size_t x, std::size_t y) { return (x > y ? x - y : y - x) <= window; };
-  // Every loop closure with one end within the window of a: the other end must be near b.
-  const std::size_t lo = a > window ? a - window : 0, hi = std::min(optimizer_.graph().numNodes() - 1, a + window);
-  for (std::size_t u = lo; u <= hi; ++u) {
-    for (std::size_t j : optimizer_.incident(u)) {
-      if (j == c || !is_loop_closure_[j]) continue;
-      const std::size_t other = optimizer_.fromIndex(j) == u ? optimizer_.toIndex(j) : optimizer_.fromIndex(j);
-      if (near(other, b) && visit(j, u, other)) return true;
-    }
-  }
-  return false;
-}
-
 std::vector<std::size_t> MapOptimizer::consistentPartners(std::size_t c, bool record) {
-  const toro::PoseGraph& g = optimizer_.graph();
-  const toro::OdometryChain& chain = odometry();
   const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
   const double threshold = supportThreshold();
   std::vector<std::size_t> partners;
-  visitNeighbours(c, [&](std::size_t j, std::size_t u, std::size_t other) {
+  evidence_.visitNeighbours(c, supportWindow(), [&](std::size_t j, std::size_t u, std::size_t other) {
     if (odometryVerdict(j, threshold) < 0) return false;
     if (std::minmax(u, other) == std::minmax(a, b)) return false;  // the same two poses: no second view
     if (std::find(partners.begin(), partners.end(), j) != partners.end()) return false;
-    const double chi2 = toro::loopClosurePairChi2(g, chain, c, j);
+    const double chi2 = evidence_.pairChi2(c, j);
     if (!(chi2 >= 0.0)) return false;
-    if (record) tested_pairs_.add(chi2);  // the threshold's statistic
+    if (record) evidence_.testedPairs().add(chi2);  // the threshold's statistic
     // No pair counts before the threshold knows the sender's scale (a few loop closures of the
     // first revisit wait for it).
-    if (tested_pairs_.count() >= kMinPairsToAdaptSupport && chi2 <= threshold) partners.push_back(j);
+    if (evidence_.testedPairs().count() >= kMinPairsToAdaptSupport && chi2 <= threshold)
+      partners.push_back(j);
     return false;
   });
   return partners;
 }
 
 bool MapOptimizer::hasNeighbours(std::size_t c) {
-  return visitNeighbours(c, [](std::size_t, std::size_t, std::size_t) { return true; });
+  return evidence_.visitNeighbours(c, supportWindow(),
+                                   [](std::size_t, std::size_t, std::size_t) { return true; });
 }
 
 bool MapOptimizer::supportedByPartners(std::size_t c) {
@@ -618,15 +505,15 @@ bool MapOptimizer::witnessedAcrossSpan(std::size_t c, double pair_threshold) {
   // the threshold below the declared covariances'): at the declared covariances of a sender that
   // declares far more than its noise, wrong loop closures a few poses apart agree with each other
   // (intel.g2o replayed with 1000 of them: four released in its first 40 keyframes, 8.9 m off).
-  if (tested_pairs_.count() < kMinPairsToAdaptSupport && !(pair_threshold < declaredQuantile())) return false;
+  if (evidence_.testedPairs().count() < kMinPairsToAdaptSupport &&
+      !(pair_threshold < LoopClosureEvidence::declaredQuantile(dof())))
+    return false;
   const std::size_t support_window = static_cast<std::size_t>(options_.support_window_keyframes);
   const std::size_t window =
-      std::clamp(span(c) / kSpanWindowDivisor, support_window, kMaxSpanWindows * support_window);
-  const toro::PoseGraph& g = optimizer_.graph();
-  const toro::OdometryChain& chain = odometry();
+      std::clamp(evidence_.span(c) / kSpanWindowDivisor, support_window, kMaxSpanWindows * support_window);
   const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
   const auto agree = [&](std::size_t x, std::size_t y) {
-    const double chi2 = toro::loopClosurePairChi2(g, chain, x, y);
+    const double chi2 = evidence_.pairChi2(x, y);
     return chi2 >= 0.0 && chi2 <= pair_threshold;
   };
   // Witnesses that also agree with each other: so wide a window holds many wrong loop closures
@@ -635,18 +522,19 @@ bool MapOptimizer::witnessedAcrossSpan(std::size_t c, double pair_threshold) {
   // support window alone, 617 with witnesses agreeing with c only).
   std::vector<std::size_t> witnesses, seen;
   bool exhausted = false;
-  const bool found = visitNeighbours(c, window, [&](std::size_t j, std::size_t u, std::size_t other) {
-    if (std::minmax(u, other) == std::minmax(a, b)) return false;  // the same two poses: no second view
-    if (std::find(seen.begin(), seen.end(), j) != seen.end()) return false;
-    if (seen.size() >= kMaxWitnessTests) return exhausted = true;
-    seen.push_back(j);
-    if (odometryVerdict(j, supportThreshold()) < 0) return false;  // refuted: no witness
-    if (!agree(c, j)) return false;
-    for (std::size_t w : witnesses)
-      if (agree(w, j)) return true;
-    witnesses.push_back(j);
-    return false;
-  });
+  const bool found =
+      evidence_.visitNeighbours(c, window, [&](std::size_t j, std::size_t u, std::size_t other) {
+        if (std::minmax(u, other) == std::minmax(a, b)) return false;  // the same two poses: no second view
+        if (std::find(seen.begin(), seen.end(), j) != seen.end()) return false;
+        if (seen.size() >= kMaxWitnessTests) return exhausted = true;
+        seen.push_back(j);
+        if (odometryVerdict(j, supportThreshold()) < 0) return false;  // refuted: no witness
+        if (!agree(c, j)) return false;
+        for (std::size_t w : witnesses)
+          if (agree(w, j)) return true;
+        witnesses.push_back(j);
+        return false;
+      });
   return found && !exhausted;
 }
 
@@ -657,68 +545,8 @@ bool MapOptimizer::leftToInnovation(std::size_t c) {
   // The finish must be able to test it: on, determined, and the covariances' scale readable.
   return supportEnabled() && options_.background_finish && scaleReadable() &&
          toro::constraintChi2(optimizer_.graph(), c) >
-             std::max(kReleaseWidths * robust_width_, declaredQuantile()) &&
+             std::max(kReleaseWidths * robust_width_, LoopClosureEvidence::declaredQuantile(dof())) &&
          finishDetermined();
-}
-
-double MapOptimizer::mapPathChi2(std::size_t c) {
-  const toro::ParameterTree& tree = optimizer_.tree();
-  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
-  if (tree.path(a, b, path_up_, path_down_) == toro::ParameterTree::kNone) return -1.0;
-  if (path_up_.size() + path_down_.size() > kMaxPathLinks) return -1.0;
-  // The link between a node and its tree parent: the weightiest constraint between them that
-  // counts (a held loop closure is not evidence; c is what is judged).
-  bool through_loop_closure = false;
-  const auto link = [&](std::size_t child) {
-    const std::size_t parent = tree.parent(child);
-    toro::ChainLink best{0, 0.0};
-    for (std::size_t j : optimizer_.incident(child)) {
-      if (j == c || optimizer_.weightCap(j) < 1.0) continue;
-      if ((optimizer_.fromIndex(j) == child ? optimizer_.toIndex(j) : optimizer_.fromIndex(j)) != parent) continue;
-      const double w = is_loop_closure_[j] ? optimizer_.weights()[j] : 1.0;
-      if (w > best.weight) best = {j, w};
-    }
-    if (!(best.weight >= kPathLinkMinWeight)) return false;
-    if (is_loop_closure_[best.constraint]) through_loop_closure = true;
-    path_links_.push_back(best);
-    return true;
-  };
-  path_links_.clear();
-  for (std::size_t u : path_up_)
-    if (!link(u)) return -1.0;
-  const std::size_t up_links = path_links_.size();
-  for (std::size_t w : path_down_)
-    if (!link(w)) return -1.0;
-  if (!through_loop_closure) return -1.0;  // odometry alone: odometryCycleChi2 says the same, cached
-  std::reverse(path_links_.begin() + static_cast<std::ptrdiff_t>(up_links), path_links_.end());  // top -> b
-  return toro::loopClosureChainChi2(optimizer_.graph(), c, path_links_, planar_);
-}
-
-double MapOptimizer::mapPathThreshold(bool through_loop_closure) const {
-  const double dof = this->dof();
-  const RecentChi2& tested = through_loop_closure ? tested_paths_ : tested_odometry_paths_;
-  const double lenience = through_loop_closure ? kPathLenience : kOdometryPathLenience;
-  const double declared = lenience * toro::chiSquareQuantile(kSupportConfidence, dof);
-  if (tested.samples() < kMinPathsToScale) return declared;
-  const double scale = tested.lowQuantile() / toro::chiSquareQuantile(kSupportScaleQuantile, dof);
-  return declared * std::clamp(scale, kMinPathScale, 1.0);
-}
-
-double MapOptimizer::odometryCycleChi2(std::size_t c) {
-  if (odometry_cycle_structure_ != structure_) {
-    odometry_cycle_chi2_.clear();
-    odometry_cycle_structure_ = structure_;
-  }
-  if (odometry_cycle_chi2_.size() <= c) odometry_cycle_chi2_.resize(c + 1, kNaN);
-  double& chi2 = odometry_cycle_chi2_[c];
-  // Measurements only, so it never changes while the constraints stay as they are.
-  if (std::isnan(chi2)) chi2 = toro::loopClosureOdometryChi2(optimizer_.graph(), odometry(), c);
-  return chi2;
-}
-
-std::size_t MapOptimizer::span(std::size_t c) const {
-  const std::size_t a = optimizer_.fromIndex(c), b = optimizer_.toIndex(c);
-  return a > b ? a - b : b - a;
 }
 
 double MapOptimizer::gateThreshold() const {
@@ -726,25 +554,23 @@ double MapOptimizer::gateThreshold() const {
                        : std::numeric_limits<double>::infinity();
 }
 
-double MapOptimizer::declaredQuantile() const { return toro::chiSquareQuantile(kSupportConfidence, dof()); }
-
 int MapOptimizer::mapPathVerdict(std::size_t c, bool record) {
-  const double path = mapPathChi2(c);
+  const double path = evidence_.mapPathChi2(c);
   bool beyond_scaled = false;
   if (path >= 0.0) {
-    if (record) tested_paths_.add(path);
-    const double threshold = mapPathThreshold(true);
+    if (record) evidence_.testedPaths().add(path);
+    const double threshold = evidence_.pathThreshold(true, dof());
     beyond_scaled = path > threshold;
     // Beyond the scale learnt from the paths so far but within the declared covariances' own
     // quantile: in doubt, and the odometry over the span decides, as below.
-    if (beyond_scaled && path > declaredQuantile()) return -1;
+    if (beyond_scaled && path > LoopClosureEvidence::declaredQuantile(dof())) return -1;
     if (path <= threshold / kPathLenience) return 1;
   }
   // No path through accepted loop closures, or one in doubt: the odometry over the whole span.
-  const double odometry = span(c) > kMaxOdometrySpan ? -1.0 : odometryCycleChi2(c);
+  const double odometry = evidence_.span(c) > kMaxOdometrySpan ? -1.0 : evidence_.odometryCycleChi2(c);
   if (!(odometry >= 0.0)) return beyond_scaled ? -1 : path >= 0.0 ? 1 : 0;  // nothing to clear it of doubt
-  if (record) tested_odometry_paths_.add(odometry);
-  return odometry <= mapPathThreshold(false) ? 1 : -1;
+  if (record) evidence_.testedOdometryPaths().add(odometry);
+  return odometry <= evidence_.pathThreshold(false, dof()) ? 1 : -1;
 }
 
 void MapOptimizer::hold(std::size_t c) {
@@ -774,15 +600,15 @@ void MapOptimizer::release(std::size_t c, double lenience) {
 }
 
 int MapOptimizer::odometryVerdict(std::size_t c, double threshold) {
-  if (span(c) > static_cast<std::size_t>(options_.support_window_keyframes)) return 0;
-  const double chi2 = odometryCycleChi2(c);
+  if (evidence_.span(c) > static_cast<std::size_t>(options_.support_window_keyframes)) return 0;
+  const double chi2 = evidence_.odometryCycleChi2(c);
   if (!(chi2 >= 0.0)) return 0;
   return chi2 <= threshold ? 1 : -1;
 }
 
 void MapOptimizer::judgeSupport(std::size_t c) {
   if (!supportEnabled()) return;
-  const bool scale_was_known = tested_pairs_.count() >= kMinPairsToAdaptSupport;
+  const bool scale_was_known = evidence_.testedPairs().count() >= kMinPairsToAdaptSupport;
   // Ends a few keyframes apart: the odometry between them decides (a short chain is precise).
   const int verdict = shortSpanVerdict(c, supportThreshold());
   // Every arrival the odometry cannot judge feeds the path statistics, agreeing with the map or not.
@@ -817,10 +643,10 @@ void MapOptimizer::judgeSupport(std::size_t c) {
   // Held neighbours it agrees with may have enough support now.
   for (std::size_t j : partners)
     if (optimizer_.weightCap(j) < 1.0 && supportedByPartners(j)) release(j);
-  if (tested_pairs_.samples() >= kMinPairsToAdaptSupport && !accepted_at_wider_threshold_.empty() &&
+  if (evidence_.testedPairs().samples() >= kMinPairsToAdaptSupport && !accepted_at_wider_threshold_.empty() &&
       !(supportThreshold() >= kRejudgeNarrowing * rejudged_threshold_))
     rejudgeAccepted();
-  if (scale_was_known || tested_pairs_.count() < kMinPairsToAdaptSupport) return;
+  if (scale_was_known || evidence_.testedPairs().count() < kMinPairsToAdaptSupport) return;
   // The threshold has just learnt the sender's scale: the loop closures held while it could not
   // judge pairs (the first revisit) are judged again.
   const double threshold = supportThreshold();
@@ -856,8 +682,8 @@ int MapOptimizer::shortSpanVerdict(std::size_t c, double threshold) {
   // sender declaring 1 m and 1 rad per step still cannot pass a claim 0.7 m off over four
   // keyframes (test_pipeline_robust, LoopClosureAcceptedAtAWiderThresholdIsJudgedAgainWhenItNarrows).
   const double chi2 = toro::constraintChi2(optimizer_.graph(), c);
-  if (tested_pairs_.count() < kMinPairsToAdaptSupport &&
-      (hasNeighbours(c) || !(chi2 <= kOdometryPowerRatio * odometryCycleChi2(c))))
+  if (evidence_.testedPairs().count() < kMinPairsToAdaptSupport &&
+      (hasNeighbours(c) || !(chi2 <= kOdometryPowerRatio * evidence_.odometryCycleChi2(c))))
     return 0;
   return chi2 > kOdometryPowerRatio * threshold ? 0 : 1;
 }
@@ -983,7 +809,8 @@ bool MapOptimizer::releasePredicted(const FinishOutcome& outcome) {
   for (const auto& [c, chi2] : outcome.innovations) {
     if (c >= is_loop_closure_.size() || !is_loop_closure_[c] || !(optimizer_.weightCap(c) < 1.0)) continue;
     // Calibrated only beyond the support window: within it the odometry between its ends judges it.
-    const bool beyond_window = span(c) > static_cast<std::size_t>(options_.support_window_keyframes);
+    const bool beyond_window =
+        evidence_.span(c) > static_cast<std::size_t>(options_.support_window_keyframes);
     const bool predicted = chi2 >= 0.0 && chi2 <= (beyond_window ? calibrated : threshold);
     // Neighbours agree (within the support window, or across its span) and the evidence between its
     // places does not refute it, as corroboratedByPartners, its path read once.
@@ -1426,7 +1253,7 @@ void MapOptimizer::replaceGraph(const toro::PoseGraph& graph, const std::vector<
     if (held) optimizer_.setWeightCap(c, caps[c]);
   }
   optimizer_.clearAffected();
-  odometry_.clear();
+  evidence_.forgetStructure();
   finished_chi2_ = kNaN;
   settled_constraints_ = 0;
   ++structure_;
@@ -1445,12 +1272,9 @@ void MapOptimizer::clear() {
   last_full_stamp_ = ros::Time();
   full_passes_left_ = 0;
   last_chi2_ = weighted_chi2_ = kNaN;
-  odometry_.clear();
-  tested_pairs_.clear();
+  evidence_.clear();
   accepted_at_wider_threshold_.clear();
   rejudged_threshold_ = std::numeric_limits<double>::infinity();
-  tested_paths_.clear();
-  tested_odometry_paths_.clear();
   finish_due_ = false;
   last_finish_stamp_ = ros::Time();
   finished_chi2_ = kNaN;
@@ -1579,7 +1403,7 @@ void MapOptimizer::rejectCandidate(double chi2) {
     if (held) optimizer_.setWeightCap(added, later_caps[c - gate_constraint_ - 1]);
   }
   is_loop_closure_.erase(is_loop_closure_.begin() + static_cast<std::ptrdiff_t>(gate_constraint_));
-  odometry_.clear();  // constraint indices after the candidate moved down by one
+  evidence_.forgetStructure();  // constraint indices after the candidate moved down by one
   ++structure_;
   finished_chi2_ = kNaN;
   settled_constraints_ = 0;

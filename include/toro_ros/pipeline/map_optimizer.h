@@ -27,7 +27,7 @@
 #include "toro_ros/core/robust_kernel.h"
 #include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/core/tree_optimizer.h"
-#include "toro_ros/pipeline/recent_chi2.h"
+#include "toro_ros/pipeline/loop_closure_evidence.h"
 #include "toro_ros/pipeline/snapshot.h"
 
 namespace toro_ros {
@@ -173,6 +173,9 @@ class MapOptimizer {
   MapOptimizer(const OptimizationOptions& optimization, const toro::RobustOptions& robust, bool planar,
                const GateOptions& gate, PipelineCounters* counters, RefusalSink refuse = nullptr,
                WarningSink warn = nullptr);
+  // evidence_ refers to this object's map.
+  MapOptimizer(const MapOptimizer&) = delete;
+  MapOptimizer& operator=(const MapOptimizer&) = delete;
 
   // Graph growth.  A keyframe with an odometry constraint (from the previous keyframe, whose
   // corrected pose `pose` continues).  addLoopClosure: empty string when applied, else the graph's
@@ -318,26 +321,15 @@ class MapOptimizer {
   // the test had power (the loop closure's chi2 on the map within kOdometryPowerRatio times the
   // threshold), else 0 (judged like an arrival the odometry cannot reach); -1 as it is.
   int shortSpanVerdict(std::size_t c, double threshold);
-  // The evidence between c's two places.  mapPathChi2: the chi2 of c's cycle with the tree path
-  // through the constraints that count now (odometry and loop closures not held, each by its
-  // weight; toro::loopClosureChainChi2), -1 when the path is odometry alone (odometryCycleChi2
-  // then), too long, or has a tree edge without such a constraint.
-  // odometryCycleChi2: c's cycle with the odometry over its whole span (toro::
-  // loopClosureOdometryChi2; cached per constraint until the structure changes: odometryVerdict
-  // asks it for nearby loop closures too), -1 when the odometry does not connect its ends; not
-  // asked beyond the path limit.  span: how many keyframes apart c's ends are.  mapPathVerdict: -1 the
-  // evidence contradicts c (beyond mapPathThreshold), +1 it agrees, 0 it cannot tell; `record`
-  // feeds the thresholds' statistics (a new arrival).  A path through accepted loop closures
-  // decides when it is clear (beyond the declared covariances' quantile, declaredQuantile, as well
-  // as its scaled threshold, or within a tenth of that); otherwise the odometry does.  Partners' support
-  // cannot overrule -1: a wrong claim repeated along a revisit (a recogniser confusing two places) agrees
-  // with itself, not with the odometry or the loop closures accepted between the two places.
-  double mapPathChi2(std::size_t c);
-  double odometryCycleChi2(std::size_t c);
-  std::size_t span(std::size_t c) const;
-  double mapPathThreshold(bool through_loop_closure) const;
+  // The evidence between c's two places (LoopClosureEvidence::mapPathChi2, odometryCycleChi2)
+  // read at the thresholds: -1 it contradicts c (beyond LoopClosureEvidence::pathThreshold), +1 it
+  // agrees, 0 it cannot tell; `record` feeds the thresholds' statistics (a new arrival).  A path
+  // through accepted loop closures decides when it is clear (beyond the declared covariances'
+  // quantile as well as its scaled threshold, or within a tenth of that); otherwise the odometry
+  // over the whole span does.  Partners' support cannot overrule -1: a wrong claim repeated along a
+  // revisit (a recogniser confusing two places) agrees with itself, not with the odometry or the
+  // loop closures accepted between the two places.
   int mapPathVerdict(std::size_t c, bool record);
-  double declaredQuantile() const;  // the chi-square's 0.99 quantile at the declared covariances
   // Degrees of freedom of a loop closure's error in the statistics above: 3 in the plane (planar
   // mode, or every measurement so far planar), else 6.  See notePlanarity.
   double dof() const { return planar_ || planar_measurements_ ? 3.0 : 6.0; }
@@ -354,21 +346,13 @@ class MapOptimizer {
   // Another loop closure joins c's two places (one end within the support window of each of c's):
   // a pair that teaches the sender's scale can be tested.
   bool hasNeighbours(std::size_t c);
-  // Calls visit(j, u, other) for each loop closure j other than c with an end u within the support
-  // window of c's from-end and its other end within the window of c's to-end, until visit returns
-  // true; returns whether one did.  (consistentPartners and hasNeighbours.)
-  template <class Visit>
-  bool visitNeighbours(std::size_t c, Visit&& visit);
-  // The same within `window` keyframes of each end.
-  template <class Visit>
-  bool visitNeighbours(std::size_t c, std::size_t window, Visit&& visit);
   bool corroboratedByPartners(std::size_t c);
+  std::size_t supportWindow() const { return static_cast<std::size_t>(options_.support_window_keyframes); }
   // For the finish's test of a held loop closure far from the map: two loop closures within a
   // window scaled to c's span agree with it and with each other at `pair_threshold` (the finish's
   // release threshold, scaled by the map's variance factor).  The caller adds the path's verdict.
   bool witnessedAcrossSpan(std::size_t c, double pair_threshold);
   bool leftToInnovation(std::size_t c);
-  const toro::OdometryChain& odometry();
   // last_chi2_ and weighted_chi2_ from the current poses and weights.
   void updateChi2();
 
@@ -393,13 +377,10 @@ class MapOptimizer {
   // The chi2 with each loop closure's information scaled by its weight (those below the finish's
   // set-aside weight left out): what a finish minimises, so what the tolerance compares.
   double weighted_chi2_;
-  toro::OdometryChain odometry_;  // per node: its odometry step (toro::odometrySteps), grown lazily
-  // mapPathVerdict's scratch (the tree path's nodes and links), kept to spare an allocation a call.
-  std::vector<std::size_t> path_up_, path_down_;
-  std::vector<toro::ChainLink> path_links_;
-  // The support thresholds' statistics: cycles of loop-closure pairs tested, and mapPathChi2 of
-  // arrivals (robust to a majority of wrong ones: a low quantile).
-  RecentChi2 tested_pairs_;
+  // What the odometry, the map and neighbouring loop closures say about a loop closure, and the
+  // statistics that learn the sender's scale.  It reads optimizer_ and is_loop_closure_ (declared
+  // before it) by reference: hence a MapOptimizer is neither copied nor moved.
+  LoopClosureEvidence evidence_;
   // Loop closures the odometry supported, or an innovation test released, still at full weight:
   // judged again whenever the learnt threshold has narrowed below kRejudgeNarrowing of
   // rejudged_threshold_ (rejudgeAccepted), held when the odometry refutes them by `lenience` times
@@ -410,11 +391,6 @@ class MapOptimizer {
   };
   std::vector<AcceptedLoopClosure> accepted_at_wider_threshold_;
   double rejudged_threshold_ = std::numeric_limits<double>::infinity();
-  RecentChi2 tested_paths_;
-  RecentChi2 tested_odometry_paths_;
-  // odometryCycleChi2's cache (NaN: not computed) and the structure it belongs to.
-  std::vector<double> odometry_cycle_chi2_;
-  std::uint64_t odometry_cycle_structure_ = 0;
   double last_optimization_sec_ = 0.0;
   std::uint64_t revision_ = 0;
   // Schedule state (message time, never wall time).
