@@ -647,5 +647,46 @@ TEST(BackgroundFinish, TheIntervalRunsOnWhileOdometryIsQuietAndDoesNotWaitForItT
   EXPECT_FALSE(aboveOptimum());
 }
 
+// Within finish_chi2_tolerance of the last finished map a finish waits while loop closures come,
+// but once they pause for a second of message time one finish settles the map at the optimum:
+// within 1 % in chi2 is not within 1 % at the far end of a long chain (parking-garage.g2o replayed:
+// 0.5-0.7 m for 16 s after a revisit, bench/robust_offline_results.md, session 41).
+TEST(BackgroundFinish, WithinTheToleranceTheMapStillSettlesAtTheOptimumOnceTheLoopClosuresPause) {
+  const DriftScenario sc = makeDriftingSquare(2);
+  PipelineOptions o = finishOptions();
+  o.optimization.finish_chi2_tolerance = 1.0;  // every pass within it: only the pause finishes
+  Pipeline p(o);
+  auto finish = [&p] {
+    std::optional<FinishJob> job = p.takeFinishJob();
+    if (!job) return false;
+    const FinishOutcome outcome = runFinishJob(std::move(*job));
+    return outcome.success && p.mergeFinish(outcome);
+  };
+  const std::size_t revisit = 225;
+  feed(p, sc, 0, revisit + 1);
+  p.handleLoopClosure(trueLoopClosure(sc, 25, revisit));
+  drain(p);
+  ASSERT_TRUE(finish());  // the first: nothing finished to compare with
+  // More of the revisit (samples every 0.1 s): TORO's passes leave the map off the optimum.
+  feed(p, sc, revisit + 1, revisit + 4);
+  for (std::size_t k = 1; k <= 3; ++k) p.handleLoopClosure(trueLoopClosure(sc, 25 + k, revisit + k));
+  drain(p);
+  const std::size_t n = p.graph().numNodes();
+  const double off_before = maxPositionDifference(p.graph(), optimum(p.graph()), n);
+  ASSERT_GT(off_before, 1e-3);
+  ASSERT_LE(p.status().last_chi2, 2.0 * p.status().last_finish->chi2_after);  // within the tolerance
+  EXPECT_TRUE(p.finishPending());
+  EXPECT_FALSE(p.takeFinishJob());
+  feed(p, sc, revisit + 4, revisit + 12);  // 0.8 s after the newest loop closure
+  EXPECT_FALSE(p.takeFinishJob());
+  feed(p, sc, revisit + 12, revisit + 15);  // 1.1 s
+  ASSERT_TRUE(finish());
+  EXPECT_LT(maxPositionDifference(p.graph(), optimum(p.graph()), n), 0.01 * off_before);
+  // One per pause: odometry alone asks for no other.
+  feed(p, sc, revisit + 15, revisit + 60);
+  EXPECT_FALSE(p.takeFinishJob());
+  EXPECT_EQ(p.status().counters.finishes_started, 2u);
+}
+
 }  // namespace
 }  // namespace toro_ros

@@ -405,6 +405,7 @@ class MapOptimizer {
   bool finish_outstanding_ = false;
   std::uint64_t finish_sequence_ = 0;
   ros::Time last_finish_stamp_;
+  ros::Time last_loop_closure_stamp_;  // the newest applied loop closure's message stamp
   // The g2o chi2 of the map the last finish left (a lower bound of the optimum of any graph that
   // grew from it); NaN when there is none for the graph as it is.
   double finished_chi2_;
