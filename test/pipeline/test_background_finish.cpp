@@ -42,6 +42,14 @@ toro::PoseGraph optimum(toro::PoseGraph graph) {
   return graph;
 }
 
+// Takes the finish job if one is due, runs it and merges it; whether all three happened.
+bool finishIfDue(Pipeline& p) {
+  std::optional<FinishJob> job = p.takeFinishJob();
+  if (!job) return false;
+  const FinishOutcome outcome = runFinishJob(std::move(*job));
+  return outcome.success && p.mergeFinish(outcome);
+}
+
 double maxPositionDifference(const toro::PoseGraph& a, const toro::PoseGraph& b, std::size_t nodes) {
   double d = 0.0;
   for (std::size_t i = 0; i < nodes; ++i)
@@ -286,12 +294,7 @@ TEST(BackgroundFinish, DefaultScheduleAQuarterSecondWhileTheMapMovesASecondToTes
   o.optimization.hold_until_supported = true;  // the node's default (the test options turn it off)
   ASSERT_EQ(o.optimization.finish_min_interval_sec, OptimizationOptions{}.finish_min_interval_sec);
   Pipeline p(o);
-  auto finish = [&p] {
-    std::optional<FinishJob> job = p.takeFinishJob();
-    if (!job) return false;
-    const FinishOutcome outcome = runFinishJob(std::move(*job));
-    return outcome.success && p.mergeFinish(outcome);
-  };
+  auto finish = [&p] { return finishIfDue(p); };
   // A first revisit, its loop closures agreeing with each other: the map moves, a finish follows.
   const std::size_t revisit = 225;
   feed(p, sc, 0, revisit + 1);
@@ -613,12 +616,7 @@ TEST(BackgroundFinish, TheIntervalRunsOnWhileOdometryIsQuietAndDoesNotWaitForItT
   o.optimization.finish_min_interval_sec = 1.0;
   Pipeline p(o);
   const std::size_t lap = (sc.odometry.size() - 1) / 3;
-  auto finish = [&p] {
-    std::optional<FinishJob> job = p.takeFinishJob();
-    if (!job) return false;
-    const FinishOutcome outcome = runFinishJob(std::move(*job));
-    return outcome.success && p.mergeFinish(outcome);
-  };
+  auto finish = [&p] { return finishIfDue(p); };
   auto aboveOptimum = [&p] { return toro::g2oChi2(p.graph()) > 1.01 * toro::g2oChi2(optimum(p.graph())); };
   feed(p, sc, 0, 2 * lap + 1);
   p.handleLoopClosure(trueLoopClosure(sc, 0, lap));
@@ -656,12 +654,7 @@ TEST(BackgroundFinish, WithinTheToleranceTheMapStillSettlesAtTheOptimumOnceTheLo
   PipelineOptions o = finishOptions();
   o.optimization.finish_chi2_tolerance = 1.0;  // every pass within it: only the pause finishes
   Pipeline p(o);
-  auto finish = [&p] {
-    std::optional<FinishJob> job = p.takeFinishJob();
-    if (!job) return false;
-    const FinishOutcome outcome = runFinishJob(std::move(*job));
-    return outcome.success && p.mergeFinish(outcome);
-  };
+  auto finish = [&p] { return finishIfDue(p); };
   const std::size_t revisit = 225;
   feed(p, sc, 0, revisit + 1);
   p.handleLoopClosure(trueLoopClosure(sc, 25, revisit));
