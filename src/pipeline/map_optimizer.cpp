@@ -1136,19 +1136,19 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
   if (!finish_after_release_ && within(options_.finish_min_interval_sec)) return std::nullopt;
   if (std::isfinite(finished_chi2_) && std::isfinite(weighted_chi2_) &&
       weighted_chi2_ <= (1.0 + options_.finish_chi2_tolerance) * finished_chi2_) {
-    // Still due: a later pass may take the map further from the optimum, and once the loop closures
-    // pause the map settles at the optimum (kSettleAfterLoopClosuresSec).
-    if (!held_since_finish_) {
+    // Still due: a later pass may take the map further from the optimum.
+    if (held_since_finish_) {
+      // A loop closure held since the last finish does not move the map, but the next finish tests
+      // it: no hurry, so such a finish keeps the former interval.  Why: with many held (1000 wrong
+      // loop closures a few poses apart in intel.g2o, replayed) nearly every interval holds one, and
+      // at 0.25 s the finishes that only tested them took the replay 6.4 -> 15.7 s.
+      if (within(std::max(options_.finish_min_interval_sec, kHeldTestIntervalSec))) return std::nullopt;
+    } else {
+      // Once the loop closures pause, the map settles at the optimum (kSettleAfterLoopClosuresSec).
       const double since_loop_closure = (now - last_loop_closure_stamp_).toSec();
       if (last_loop_closure_stamp_.isZero() || !(since_loop_closure >= kSettleAfterLoopClosuresSec))
         return std::nullopt;
     }
-    // A loop closure held since the last finish does not move the map, but the next finish tests
-    // it: no hurry, so such a finish keeps the former interval.  Why: with many held (1000 wrong
-    // loop closures a few poses apart in intel.g2o, replayed) nearly every interval holds one, and
-    // at 0.25 s the finishes that only tested them took the replay 6.4 -> 15.7 s.
-    else if (within(std::max(options_.finish_min_interval_sec, kHeldTestIntervalSec)))
-      return std::nullopt;
   }
   FinishJob job = makeFinishJob(static_cast<unsigned>(options_.finish_max_iterations), finishGraph());
   job.options.relative_decrease_tolerance = kBackgroundRelativeDecrease;
