@@ -2,7 +2,7 @@
 // (issues 10 and 14).  Per dataset: its optimum (optimizeGraph, default settings, every loop
 // closure counted), then each loop closure's leave-one-out innovation chi2: the finish run on the
 // graph without it, from that optimum, reports e^T (Sigma_z + J H^-1 J^T)^-1 e for it (the rise of
-// the optimum's chi2 it brings), what MapOptimizer::releasePredicted compares with the 0.99
+// the optimum's chi2 it brings), what LoopClosureSupport::releasePredicted compares with the 0.99
 // chi-square quantile times the a-posteriori variance factor (chi2 / (dof x loop closures)).
 // Divided by that factor, a right loop closure's innovation follows chi-square with dof degrees of
 // freedom if its declared covariance has the right shape; the table says how far each file's

@@ -181,7 +181,7 @@ TEST(SupportReplay, Kitti05LongLoopsCount) {
 // keyframes 1363->48, 1438->125, 1449->266 and 1542->198 are each alone within the support window,
 // and the long loop's drift puts each 4 to 12 times above the finish's release threshold.  They
 // agree with each other over a tenth of their span, so the finish releases them within
-// kCorroboratedInnovationLenience (MapOptimizer::witnessedAcrossSpan); before, the published map
+// kCorroboratedInnovationLenience (LoopClosureSupport::witnessedAcrossSpan); before, the published map
 // ignored that revisit for ~510 s of message time (its chi2 12,000 to 27,000 times the optimum's)
 // until later loop closures had brought it within reach (605 s with the earlier stretch below).
 // Now ~50 s; the longest stretch left (247 s) is the first revisits', held until a second loop

@@ -7,57 +7,14 @@
 #include <cmath>
 #include <vector>
 
+#include "corridor_map.h"
 #include "toro_ros/core/chi_square.h"
 #include "toro_ros/core/tree_optimizer.h"
 #include "toro_ros/pipeline/loop_closure_evidence.h"
 
 using namespace toro;
 using toro_ros::LoopClosureEvidence;
-
-namespace {
-
-Matrix6 informationOf(double stddev_m, double stddev_rad) {
-  Matrix6 info = Matrix6::Zero();
-  for (int k = 0; k < 3; ++k) {
-    info(k, k) = 1.0 / (stddev_m * stddev_m);
-    info(k + 3, k + 3) = 4.0 / (stddev_rad * stddev_rad);  // g2o's quaternion units
-  }
-  return info;
-}
-
-// A corridor driven there and back (1 m steps, a half turn at pose 20), odometry exact, so pose
-// 20 + k and 20 - k are one place; the map and its loop-closure flags as MapOptimizer keeps them.
-struct Corridor {
-  TreeOptimizer map;
-  std::vector<bool> is_loop_closure;
-  std::vector<Pose3> truth;
-
-  Corridor() {
-    Pose3 pose;
-    for (int i = 0; i < 40; ++i) {
-      truth.push_back(pose);
-      map.addNode(i, pose);
-      if (i > 0)
-        add({i - 1, i, relativePose(truth[i - 1], truth[i]), informationOf(0.05, 0.01),
-             ConstraintKind::kOdometry});
-      pose = pose * (i == 19 ? Pose3::fromRollPitchYaw(0, 0, 0, 0, 0, M_PI)
-                             : Pose3::fromRollPitchYaw(1.0, 0, 0, 0, 0, 0));
-    }
-  }
-  std::size_t add(const Constraint& c, bool tree_edge = true) {
-    is_loop_closure.push_back(c.kind == ConstraintKind::kLoopClosure);
-    return map.addConstraint(c, tree_edge);
-  }
-  // A loop closure between two poses, its measurement off the truth by `error`; `tree_edge` as
-  // TreeOptimizer::addConstraint's (MapOptimizer admits one to the tree once it counts).
-  std::size_t loopClosure(int from, int to, const Pose3& error = Pose3(), bool tree_edge = true) {
-    return add({from, to, relativePose(truth[from], truth[to]) * error, informationOf(0.1, 0.05),
-                ConstraintKind::kLoopClosure},
-               tree_edge);
-  }
-};
-
-}  // namespace
+using toro_ros::testing::Corridor;
 
 TEST(LoopClosureEvidence, OdometryCycleTellsARightLoopClosureFromAWrongOneAndFollowsTheStructure) {
   Corridor c;

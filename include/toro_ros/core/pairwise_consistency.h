@@ -2,7 +2,7 @@
 // loop_closure_pairs.h (Mangelson et al., ICRA 2018) applied to every loop closure at once, for the
 // batch optimiser's robust dead-reckoning and corroborated starts (robust_optimizer.cpp,
 // heldFromDeadReckoning).  The live pipeline asks
-// the same question one arrival at a time (MapOptimizer::consistentPartners, with the same window,
+// the same question one arrival at a time (LoopClosureSupport::consistentPartners, with the same window,
 // partner count and scale statistic).
 //
 // Why the batch needs it: its starts judged each loop closure against the odometry alone, at the

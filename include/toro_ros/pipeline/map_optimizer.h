@@ -22,12 +22,13 @@
 
 #include <ros/time.h>
 
-#include "toro_ros/core/loop_closure_pairs.h"
 #include "toro_ros/core/pose_graph.h"
 #include "toro_ros/core/robust_kernel.h"
 #include "toro_ros/core/sparse_finisher.h"
 #include "toro_ros/core/tree_optimizer.h"
+#include "toro_ros/pipeline/finish_job.h"
 #include "toro_ros/pipeline/loop_closure_evidence.h"
+#include "toro_ros/pipeline/loop_closure_support.h"
 #include "toro_ros/pipeline/snapshot.h"
 
 namespace toro_ros {
@@ -72,7 +73,7 @@ struct OptimizationOptions {
   // fifth the first time, while the threshold learns the sender's covariance scale).  With the
   // background finish on, a loop closure far from the map (beyond 10 robust widths and the 0.99
   // quantile) waits for the next finish instead, which releases it by its innovation against the
-  // whole map (MapOptimizer::leftToInnovation): a map made stiff by many loop closures contradicts
+  // whole map (LoopClosureSupport::leftToInnovation): a map made stiff by many loop closures contradicts
   // a repeated wrong claim that its long tree path and the odometry cannot.
   bool hold_until_supported = true;
   int support_window_keyframes = 25;
@@ -88,71 +89,6 @@ struct OptimizeResult {
   int iterations = 0;
 };
 
-// A finish to run on a copy of the graph, away from the pipeline (any thread): runFinishJob.
-struct FinishJob {
-  std::uint64_t sequence = 0;   // 1, 2, ... per MapOptimizer
-  std::uint64_t structure = 0;  // MapOptimizer's structure version when it was taken
-  ros::Time stamp;              // newest message time then
-  // The graph then; its poses (the current estimate) are the warm start.  Shared and never changed
-  // while a job holds it: the MapOptimizer keeps it in step with the map between jobs
-  // (finishGraph), so taking a job copies no constraint in the worker (a full copy was 24-38 ms
-  // of the worker at 100,000 keyframes); runFinishJob works on a copy of its own.
-  std::shared_ptr<const toro::PoseGraph> graph;
-  // Each constraint's robust weight as TORO's passes use it (1 for odometry): the finish minimises
-  // the chi2 with the loop closures' information scaled by them, so it agrees with the passes on
-  // which loop closures count (its own re-weighting by plain residuals would judge a right loop
-  // closure that closes a long drifted loop by the drift and drop it).  Loop closures weighted
-  // below toro::FinishOptions's set-aside weight are left out (they only add fill-in).
-  std::vector<double> weights;
-  toro::FinishOptions options;
-  // Held loop closures (constraint indices) whose innovation against the finished map the
-  // outcome gives: the test by what the whole graph says of them (MapOptimizer::mergeFinish).
-  std::vector<std::size_t> innovation_candidates;
-  // Accepted loop closures (constraint indices, counted in the finish) whose leave-one-out
-  // innovation the outcome gives: samples of the sender's right loop closures that calibrate the
-  // test of the held ones (MapOptimizer::calibratedInnovationThreshold).  Only beside
-  // innovation_candidates, whose factorisation they share.
-  std::vector<std::size_t> calibration_samples;
-  // Sum over loop closures of min(1, weight): the finish's redundancy over its dof.
-  double loop_closure_weight = 0.0;
-  // Also solve the graph from scratch (TORO from the odometry chain, then the finish) and keep
-  // whichever of the two ends lower.  Set when loop closures an earlier finish had settled the
-  // map with were held since (MapOptimizer::rejudgeAccepted): the map they bent is a basin of its
-  // own, and a finish warm-started there stays in it (a synthetic sphere replayed with 150 wrong
-  // loop closures a few poses apart, toro::addOutliers seed 2: accepted in the first ring, held
-  // once the sender's scale was learnt; the warm finish stopped at chi2 75, the one from scratch
-  // at 0.70, and the first revisit's right loop closures, measured against the bent map, were
-  // held to the end: 0.27 m RMS against 0.087 m clean).
-  bool from_scratch = false;
-};
-
-struct FinishOutcome {
-  std::uint64_t sequence = 0;
-  std::uint64_t structure = 0;
-  ros::Time stamp;
-  bool success = false;
-  std::string error;      // when not success
-  toro::PoseGraph graph;  // the job's nodes with the finished poses (and the constraints it used)
-  std::size_t constraints = 0;  // constraints of the map when the job was taken
-  double chi2_before = 0.0;
-  double chi2_after = 0.0;
-  std::size_t iterations = 0;
-  double seconds = 0.0;  // wall time of the finish (reported only)
-  // Per job.innovation_candidates entry: (constraint index, toro::FinishReport::innovation_chi2).
-  std::vector<std::pair<std::size_t, double>> innovations;
-  // Per job.calibration_samples entry that could be told: (constraint index, its leave-one-out
-  // innovation chi2, toro::FinishReport::included_innovation_chi2).
-  std::vector<std::pair<std::size_t, double>> calibration_innovations;
-  double loop_closure_weight = 0.0;   // the job's
-  std::vector<std::size_t> left_out;  // constraints the finish left out (weight below its set-aside weight)
-  bool from_scratch_kept = false;     // the job's solution from scratch ended lower and was taken
-};
-
-// Runs the job's finish.  Thread-safe (touches nothing but the job); never throws: a failure is
-// reported in the outcome.  `cancelled` (optional) is polled after every iteration: when it
-// returns true the finish stops and the outcome says so (not success).
-FinishOutcome runFinishJob(FinishJob job, const std::function<bool()>& cancelled = {});
-
 // The loop-closure gate (PipelineOptions::loop_closure_gate_*): off when confidence is 0.  Its
 // threshold is the chi-square quantile at `confidence` for the input's degrees of freedom
 // (MapOptimizer::dof: 3 while every measurement is planar) times variance_factor.
@@ -161,7 +97,7 @@ struct GateOptions {
   double variance_factor = 1.0;
 };
 
-class MapOptimizer {
+class MapOptimizer : private LoopClosureSupport::Owner {
  public:
   // Hear the gate's refusals (category, detail) and one-line notes (re-admissions); both optional.
   using RefusalSink = std::function<void(const std::string& category, const std::string& detail)>;
@@ -173,7 +109,7 @@ class MapOptimizer {
   MapOptimizer(const OptimizationOptions& optimization, const toro::RobustOptions& robust, bool planar,
                const GateOptions& gate, PipelineCounters* counters, RefusalSink refuse = nullptr,
                WarningSink warn = nullptr);
-  // evidence_ refers to this object's map.
+  // evidence_ and support_ refer to this object's map.
   MapOptimizer(const MapOptimizer&) = delete;
   MapOptimizer& operator=(const MapOptimizer&) = delete;
 
@@ -227,7 +163,7 @@ class MapOptimizer {
   const std::vector<RejectedLoopClosure>& rejected() const { return rejected_; }
   std::vector<DownWeightedLoopClosure> downWeighted() const;
   // Loop closures held for want of support now (weight 0; see OptimizationOptions).
-  std::size_t heldLoopClosures() const;
+  std::size_t heldLoopClosures() const { return support_.held(); }
   // Infinity when the gate is off.
   double gateThreshold() const;
   double robustWidth() const { return robust_.enabled() ? robust_width_ : 0.0; }
@@ -256,32 +192,17 @@ class MapOptimizer {
   std::shared_ptr<const toro::PoseGraph> finishGraph();
   // Hands the due solve from scratch (from_scratch_due_) to `job`, and counts it.
   void takeFromScratch(FinishJob* job);
-  // Held loop closures for the finish to test by their innovation (FinishJob::innovation_candidates):
-  // those tested longest ago first, at most kInnovationTestsPerFinish.  `job.loop_closure_weight`
-  // must be set (it is remembered for the next re-test, kInnovationRetestGrowth).
-  std::vector<std::size_t> innovationCandidates(const FinishJob& job);
-  // Accepted loop closures for the same finish to give leave-one-out innovations of
-  // (FinishJob::calibration_samples): kCalibrationSamplesPerFinish, round robin; none when the job
-  // tests no held one, unless the map counts kMinCalibrationSamples loop closures and fewer samples
-  // are known.  `job.loop_closure_weight` must be set.
-  std::vector<std::size_t> calibrationSamples(const FinishJob& job);
-  // Sum over loop closures of min(1, weight): the redundancy of a finish over its dof.
-  double loopClosureWeight(const std::vector<double>& weights) const;
-  // Whether loopClosureWeight(optimizer_.weights()) reaches kMinLoopClosuresForScale (stops there:
-  // asked at every held arrival).
-  bool scaleReadable() const;
-  // Releases the held loop closures the finished map predicts (FinishOutcome::innovations); true
-  // if any.  Keeps the outcome's calibration samples first.
-  bool releasePredicted(const FinishOutcome& outcome);
-  // The kCalibrationQuantile of the accepted loop closures' sampled leave-one-out innovations
-  // (accepted_innovation_, those still accepted), once kMinCalibrationSamples are known; else -1.
-  // The release test of a held loop closure spanning more than the support window reads it
-  // (within kMaxCalibratedWidening of its model threshold).
-  double calibratedInnovationThreshold() const;
-  // Accepted loop closures with a sampled innovation (accepted_innovation_ not NaN) for structure_.
-  std::size_t calibrationSamplesKnown() const;
+  // Support on and its window from the options (at construction and live tuning).
+  void configureSupport();
+  // LoopClosureSupport::Owner.
+  double kernelWidth() const override { return robust_width_; }
+  bool backgroundFinishOn() const override;
+  std::uint64_t structure() const override { return structure_; }
+  void loopClosureHeld(bool testable) override;
+  void loopClosureReleased() override;
+  void acceptedLoopClosureHeld(std::size_t c) override;
   // False (and said once) when constraints leave axes unmeasured: the background finish is off.
-  bool finishDetermined();
+  bool finishDetermined() override;
   // Makes `graph` the optimiser's graph; is_loop_closure_ must already describe its constraints.
   // `caps`: each constraint's weight cap (TreeOptimizer::setWeightCap), empty for none.
   void replaceGraph(const toro::PoseGraph& graph, const std::vector<double>& caps = {});
@@ -294,65 +215,11 @@ class MapOptimizer {
   bool recheckLoopClosures();
   bool readmitRejected();
   void refuse(const std::string& category, const std::string& detail);
-  // Support (OptimizationOptions::hold_until_supported).  judgeSupport: a new loop closure agrees
-  // with the map, or with a neighbour (which is released if it was held), or is held.
-  // releaseAgreed: held ones the map now agrees with.  judgeAllSupport: every loop closure, as
-  // after a load.
-  bool supportEnabled() const { return options_.hold_until_supported && robust_.enabled(); }
-  void judgeSupport(std::size_t c);
-  void rejudgeAccepted();
-  bool releaseAgreed();
-  void judgeAllSupport();
-  void hold(std::size_t c);  // weight cap 0 until a release; counted
-  void release(std::size_t c, double lenience = 1.0);  // lenience: of its re-judging (rejudgeAccepted)
-  bool agreesWithMap(std::size_t c) const;
-  // Held c may count now: agreesWithMap, or within kReleaseWidths of the map and its evidence.
-  bool agreesWithSettledMap(std::size_t c);
-  double supportThreshold() const;
-  // The innovation chi2 a held loop closure must be within to be released by the finish
-  // (releasePredicted); -1 while too few loop closures count to read the covariances' scale.
-  double innovationThreshold(const FinishOutcome& outcome) const;
-  // Ends within the support window: +1 the odometry between them agrees, -1 it contradicts; 0
-  // farther apart (or not connected by odometry): the odometry cannot tell.
-  // `threshold`: supportThreshold(), taken once by the caller (it sorts the tested pairs' sample,
-  // and the partner search asks for every candidate).
-  int odometryVerdict(std::size_t c, double threshold);
-  // odometryVerdict as an arrival's judge: its +1 only once the sender's scale is learnt and when
-  // the test had power (the loop closure's chi2 on the map within kOdometryPowerRatio times the
-  // threshold), else 0 (judged like an arrival the odometry cannot reach); -1 as it is.
-  int shortSpanVerdict(std::size_t c, double threshold);
-  // The evidence between c's two places (LoopClosureEvidence::mapPathChi2, odometryCycleChi2)
-  // read at the thresholds: -1 it contradicts c (beyond LoopClosureEvidence::pathThreshold), +1 it
-  // agrees, 0 it cannot tell; `record` feeds the thresholds' statistics (a new arrival).  A path
-  // through accepted loop closures decides when it is clear (beyond the declared covariances'
-  // quantile as well as its scaled threshold, or within a tenth of that); otherwise the odometry
-  // over the whole span does.  Partners' support cannot overrule -1: a wrong claim repeated along a
-  // revisit (a recogniser confusing two places) agrees with itself, not with the odometry or the
-  // loop closures accepted between the two places.
-  int mapPathVerdict(std::size_t c, bool record);
-  // Degrees of freedom of a loop closure's error in the statistics above: 3 in the plane (planar
+  // Degrees of freedom of a loop closure's error in the support and gate statistics: 3 in the plane (planar
   // mode, or every measurement so far planar), else 6.  See notePlanarity.
-  double dof() const { return planar_ || planar_measurements_ ? 3.0 : 6.0; }
+  double dof() const override { return planar_ || planar_measurements_ ? 3.0 : 6.0; }
   // Clears planar_measurements_ when `constraint`'s measurement leaves the plane.
   void notePlanarity(const toro::Constraint& constraint);
-  // The loop closures near c that agree with it (`record`: its tests feed the threshold's
-  // statistic, for a new arrival only), and whether there are enough of them.
-  std::vector<std::size_t> consistentPartners(std::size_t c, bool record);
-  // supportedByPartners: corroboratedByPartners (enough neighbours agree and the evidence between
-  // its places does not refute it) and not leftToInnovation.  leftToInnovation: c is far from the
-  // map and the finish can test it, so the next finish's innovation test decides instead
-  // (releasePredicted, with kCorroboratedInnovationLenience when corroborated).
-  bool supportedByPartners(std::size_t c);
-  // Another loop closure joins c's two places (one end within the support window of each of c's):
-  // a pair that teaches the sender's scale can be tested.
-  bool hasNeighbours(std::size_t c);
-  bool corroboratedByPartners(std::size_t c);
-  std::size_t supportWindow() const { return static_cast<std::size_t>(options_.support_window_keyframes); }
-  // For the finish's test of a held loop closure far from the map: two loop closures within a
-  // window scaled to c's span agree with it and with each other at `pair_threshold` (the finish's
-  // release threshold, scaled by the map's variance factor).  The caller adds the path's verdict.
-  bool witnessedAcrossSpan(std::size_t c, double pair_threshold);
-  bool leftToInnovation(std::size_t c);
   // last_chi2_ and weighted_chi2_ from the current poses and weights.
   void updateChi2();
 
@@ -381,16 +248,8 @@ class MapOptimizer {
   // statistics that learn the sender's scale.  It reads optimizer_ and is_loop_closure_ (declared
   // before it) by reference: hence a MapOptimizer is neither copied nor moved.
   LoopClosureEvidence evidence_;
-  // Loop closures the odometry supported, or an innovation test released, still at full weight:
-  // judged again whenever the learnt threshold has narrowed below kRejudgeNarrowing of
-  // rejudged_threshold_ (rejudgeAccepted), held when the odometry refutes them by `lenience` times
-  // it (1; kOdometryPathLenience for those whose innovation agreed, as releasePredicted's veto).
-  struct AcceptedLoopClosure {
-    std::size_t constraint;
-    double lenience;
-  };
-  std::vector<AcceptedLoopClosure> accepted_at_wider_threshold_;
-  double rejudged_threshold_ = std::numeric_limits<double>::infinity();
+  // The rules that decide which loop closures count (hold, release, judge again), with evidence_.
+  LoopClosureSupport support_;
   double last_optimization_sec_ = 0.0;
   std::uint64_t revision_ = 0;
   // Schedule state (message time, never wall time).
@@ -422,16 +281,7 @@ class MapOptimizer {
   // setting every pose, or copied afresh when the structure changed or a job still holds it.
   std::shared_ptr<toro::PoseGraph> finish_graph_;
   std::uint64_t finish_graph_structure_ = 0;
-  std::string finish_off_reason_;  // why finishDetermined() said no (said once); "" while it has not
-  // Per constraint: the finish sequence that last tested its innovation (0: never).
-  std::vector<std::uint64_t> innovation_tested_;
-  std::uint64_t innovation_round_ = 0;     // innovation test batches so far
-  // Per constraint: the leave-one-out innovation chi2 of an accepted loop closure at the last finish
-  // that sampled it (NaN: none), for calibratedInnovationThreshold; valid for calibration_structure_.
-  std::vector<double> accepted_innovation_;
-  std::uint64_t calibration_structure_ = 0;
-  std::size_t calibration_cursor_ = 0;     // the constraint calibrationSamples looks at next (round robin)
-  double innovation_tested_weight_ = 0.0;  // loopClosureWeight at the last batch
+  std::string finish_off_reason_;          // why finishDetermined() said no (said once); "" while it has not
   bool held_since_finish_ = false;         // a loop closure was held since the last finish was taken
   bool finish_after_release_ = false;      // the last merge released held loop closures (takeFinishJob)
   bool from_scratch_due_ = false;          // FinishJob::from_scratch for the next job
