@@ -2,6 +2,7 @@
 
 #include <dlfcn.h>
 
+#include <algorithm>
 #include <atomic>
 #include <limits>
 #include <string>
@@ -188,6 +189,95 @@ class QuietCholmod : public EigenStyleCholesky<WithFactor<Solver>> {
     cholmod_free_dense(&forward, &common);
     return true;
   }
+
+  void analyzePattern(const SparseMatrix& lower) override {
+    EigenStyleCholesky<WithFactor<Solver>>::analyzePattern(lower);
+    tree_.reset();  // the factor's structure may have changed
+  }
+
+  bool forwardGram(const SparseMatrix& rhs, Eigen::MatrixXd* gram) override {
+    const cholmod_factor* l = this->solver_.factor();
+    if (!l || !l->is_ll || !l->is_super || l->xtype != CHOLMOD_REAL || l->itype != CHOLMOD_INT ||
+        this->solver_.info() != Eigen::Success || rhs.rows() != static_cast<Eigen::Index>(l->n))
+      return false;
+    if (!tree_) tree_ = std::make_unique<SupernodeTree>(*l);
+    SupernodeTree& tree = *tree_;
+    const auto* super = static_cast<const int*>(l->super);
+    const auto* pi = static_cast<const int*>(l->pi);
+    const auto* px = static_cast<const int*>(l->px);
+    const auto* rows = static_cast<const int*>(l->s);
+    const auto* values = static_cast<const double*>(l->x);
+    const Eigen::Index cols = rhs.cols();
+    if (work_.rows() != rhs.rows() || work_.cols() != cols) work_ = Eigen::MatrixXd::Zero(rhs.rows(), cols);
+    // P rhs scattered into the (zero) workspace, and the supernodes holding its rows.
+    starts_.clear();
+    for (Eigen::Index c = 0; c < cols; ++c)
+      for (SparseMatrix::InnerIterator it(rhs, c); it; ++it) {
+        const int k = tree.position[static_cast<std::size_t>(it.row())];
+        work_(k, c) = it.value();
+        starts_.push_back(tree.supernode[static_cast<std::size_t>(k)]);
+      }
+    // Their paths to the root (a supernode's parent holds its first row below the diagonal block,
+    // and every row it updates lies on that path), in elimination order (parents come later).
+    reach_.clear();
+    for (const int start : starts_)
+      for (int s = start; s >= 0 && !tree.marked[static_cast<std::size_t>(s)];
+           s = tree.parent[static_cast<std::size_t>(s)]) {
+        tree.marked[static_cast<std::size_t>(s)] = 1;
+        reach_.push_back(s);
+      }
+    for (const int s : reach_) tree.marked[static_cast<std::size_t>(s)] = 0;
+    std::sort(reach_.begin(), reach_.end());
+    gram->setZero(cols, cols);
+    for (const int s : reach_) {
+      const int k1 = super[s], ncol = super[s + 1] - k1, first = pi[s], nrow = pi[s + 1] - first;
+      const Eigen::Map<const Eigen::MatrixXd> ls(values + px[s], nrow, ncol);
+      auto y = work_.middleRows(k1, ncol);
+      ls.topRows(ncol).triangularView<Eigen::Lower>().solveInPlace(y);
+      if (nrow > ncol) {
+        update_.noalias() = ls.bottomRows(nrow - ncol) * y;
+        for (int i = 0; i < nrow - ncol; ++i) work_.row(rows[first + ncol + i]) -= update_.row(i);
+      }
+      gram->noalias() += y.transpose() * y;
+    }
+    for (const int s : reach_) work_.middleRows(super[s], super[s + 1] - super[s]).setZero();
+    return true;
+  }
+
+ private:
+  // The factor's supernodal elimination tree and permutation, read once per analysis.
+  struct SupernodeTree {
+    std::vector<int> supernode;  // of each column of L
+    std::vector<int> parent;     // of each supernode, -1 at a root
+    std::vector<int> position;   // of each row of the matrix in P rhs
+    std::vector<char> marked;    // per supernode: on the reach being collected (kept all 0)
+    explicit SupernodeTree(const cholmod_factor& l) {
+      const auto n = static_cast<std::size_t>(l.n), nsuper = static_cast<std::size_t>(l.nsuper);
+      const auto* super = static_cast<const int*>(l.super);
+      const auto* pi = static_cast<const int*>(l.pi);
+      const auto* rows = static_cast<const int*>(l.s);
+      const auto* perm = static_cast<const int*>(l.Perm);
+      supernode.assign(n, 0);
+      for (std::size_t s = 0; s < nsuper; ++s)
+        for (int k = super[s]; k < super[s + 1]; ++k)
+          supernode[static_cast<std::size_t>(k)] = static_cast<int>(s);
+      parent.assign(nsuper, -1);
+      for (std::size_t s = 0; s < nsuper; ++s) {
+        const int ncol = super[s + 1] - super[s];
+        int below = -1;  // the smallest row below the diagonal block
+        for (int p = pi[s] + ncol; p < pi[s + 1]; ++p)
+          if (below < 0 || rows[p] < below) below = rows[p];
+        if (below >= 0) parent[s] = supernode[static_cast<std::size_t>(below)];
+      }
+      marked.assign(nsuper, 0);
+      position.resize(n);
+      for (std::size_t k = 0; k < n; ++k)  // (P b)[k] = b[Perm[k]]
+        position[perm ? static_cast<std::size_t>(perm[k]) : k] = static_cast<int>(k);
+    }
+  };
+  std::unique_ptr<SupernodeTree> tree_;
+  Eigen::MatrixXd work_, update_;  // work_ kept zero between calls
+  std::vector<int> starts_, reach_;
 };
 #endif
 

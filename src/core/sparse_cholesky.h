@@ -32,6 +32,11 @@ class SparseCholesky {
   // solveColumns, symmetric by construction.  False when this factorisation is not L L^T (the
   // caller then uses solveColumns).
   virtual bool forwardSolveColumns(const Eigen::MatrixXd& /*rhs*/, Eigen::MatrixXd* /*y*/) { return false; }
+  // Y^T Y for Y = L^-1 P rhs, for a right-hand side nonzero in few rows (a constraint's Jacobian
+  // transposed: two blocks): only the part of the factor the forward solve reaches from those rows
+  // is read (the supernodes on their paths to the root of the elimination tree).  False when this
+  // factorisation is not a supernodal L L^T (the caller then uses forwardSolveColumns).
+  virtual bool forwardGram(const SparseMatrix& /*rhs*/, Eigen::MatrixXd* /*gram*/) { return false; }
 };
 
 // A fill-reducing order of a symmetric pattern (both triangles given): position[i] is where row

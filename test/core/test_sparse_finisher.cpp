@@ -169,6 +169,52 @@ TEST(SparseFinisher, InnovationOfALeftOutConstraintIsTheRiseOfTheOptimumWhenItIs
   }
 }
 
+// The innovations are the same whichever factorisation gives them: CHOLMOD's supernodal L L^T reads
+// only the part of its factor the two ends' rows reach (SparseCholesky::forwardGram), its
+// simplicial L D L^T and Eigen's solve dense columns.  A graph large enough for many supernodes,
+// candidates and included constraints spread over it (ends far apart, and near the root).
+TEST(SparseFinisher, InnovationsAgreeAcrossTheLinearSolvers) {
+  if (!cholmodAvailable()) GTEST_SKIP() << "CHOLMOD not built in";
+  for (const bool planar : {false, true}) {
+    SCOPED_TRACE(planar ? "2D" : "3D");
+    const PoseGraph full = planar ? noisyGraph2D(7, 400) : noisyGraph3D(7, 400);
+    std::vector<std::size_t> chords;
+    for (std::size_t c = 0; c < full.numConstraints(); ++c)
+      if (full.constraints()[c].to != full.constraints()[c].from + 1) chords.push_back(c);
+    ASSERT_GT(chords.size(), 40u);
+    std::vector<Constraint> left_out;
+    for (std::size_t k = 0; k < chords.size(); k += 9) left_out.push_back(full.constraints()[chords[k]]);
+    Constraint across = full.constraints()[chords[0]];  // a claim between far places
+    across.to = 250;
+    left_out.push_back(across);
+    PoseGraph without = keepConstraints(full, [&](std::size_t c) {
+      return std::none_of(left_out.begin(), left_out.end(), [&](const Constraint& l) {
+        return l.from == full.constraints()[c].from && l.to == full.constraints()[c].to;
+      });
+    });
+    const std::vector<IncludedConstraint> included{{0}, {5, 0.5}, {without.numConstraints() - 1}, {200}};
+    std::vector<std::vector<double>> innovations;
+    for (const LinearSolverType solver :
+         {LinearSolverType::kCholmodSupernodal, LinearSolverType::kCholmodSimplicial,
+          LinearSolverType::kSimplicialLDLT}) {
+      FinishOptions o = tightOptions();
+      o.linear_solver = solver;
+      PoseGraph g = without;
+      const FinishReport r = LevenbergMarquardt(o).optimize(g, {}, left_out, included);
+      std::vector<double> all = r.innovation_chi2;
+      all.insert(all.end(), r.included_innovation_chi2.begin(), r.included_innovation_chi2.end());
+      innovations.push_back(all);
+    }
+    ASSERT_EQ(innovations[0].size(), left_out.size() + included.size());
+    for (std::size_t k = 0; k < innovations[0].size(); ++k) {
+      SCOPED_TRACE("innovation " + std::to_string(k));
+      ASSERT_GT(innovations[0][k], 0.0);
+      EXPECT_NEAR(innovations[0][k], innovations[1][k], 1e-6 * innovations[0][k]);
+      EXPECT_NEAR(innovations[0][k], innovations[2][k], 1e-6 * innovations[0][k]);
+    }
+  }
+}
+
 // The leave-one-out innovation of a constraint in the graph (FinishReport::included_innovation_chi2)
 // is the innovation it would have were it left out: here against the finish of the graph without
 // it, within the linear model's few %.  What nothing else constrains has none to tell (-1); a wrong
