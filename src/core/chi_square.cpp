@@ -1,5 +1,7 @@
 #include "toro_ros/core/chi_square.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <stdexcept>
 
@@ -58,6 +60,17 @@ double chiSquareQuantile(double probability, double dof) {
     throw std::invalid_argument("chi-square quantile needs a probability in [0, 1)");
   if (!(dof > 0)) throw std::invalid_argument("chi-square needs dof > 0");
   if (probability == 0) return 0.0;
+  // Callers ask for the same few quantiles again and again (the support thresholds are read for
+  // every held loop closure at every release test: 6 % of a replay with 1000 wrong ones went into
+  // this bisection), so the last few answers are kept, per thread.
+  struct Answer {
+    double probability, dof, quantile;
+  };
+  constexpr std::size_t kKept = 8;
+  thread_local std::array<Answer, kKept> kept{};
+  thread_local std::size_t kept_count = 0, next = 0;
+  for (std::size_t k = 0; k < kept_count; ++k)
+    if (kept[k].probability == probability && kept[k].dof == dof) return kept[k].quantile;
   // The CDF increases monotonically: bracket the quantile by doubling, then bisect.
   double lo = 0.0, hi = dof + 10.0;
   while (chiSquareCdf(hi, dof) < probability) {
@@ -68,7 +81,11 @@ double chiSquareQuantile(double probability, double dof) {
     const double mid = 0.5 * (lo + hi);
     (chiSquareCdf(mid, dof) < probability ? lo : hi) = mid;
   }
-  return 0.5 * (lo + hi);
+  const double quantile = 0.5 * (lo + hi);
+  kept[next] = {probability, dof, quantile};
+  next = (next + 1) % kKept;
+  kept_count = std::min(kept_count + 1, kKept);
+  return quantile;
 }
 
 }  // namespace toro

@@ -34,6 +34,18 @@ TEST(ChiSquare, QuantileInvertsCdf) {
   EXPECT_EQ(toro::chiSquareQuantile(0, 6), 0.0);
 }
 
+// Answers are kept for repeated questions: whatever was asked in between (more pairs than are
+// kept, and the same probability at other dof), each answer is the one the CDF gives.
+TEST(ChiSquare, RepeatedQuantilesAreTheSameAnswers) {
+  for (int round = 0; round < 3; ++round)
+    for (double p : {0.2, 0.99, 0.999})
+      for (double dof : {3.0, 6.0, 1.0, 12.0}) {
+        const double x = toro::chiSquareQuantile(p, dof);
+        EXPECT_NEAR(toro::chiSquareCdf(x, dof), p, 1e-10) << "p " << p << " dof " << dof;
+        EXPECT_EQ(toro::chiSquareQuantile(p, dof), x);
+      }
+}
+
 TEST(ChiSquare, RefusesInvalidArguments) {
   EXPECT_THROW(toro::chiSquareQuantile(1.0, 6), std::invalid_argument);
   EXPECT_THROW(toro::chiSquareQuantile(-0.1, 6), std::invalid_argument);
