@@ -155,6 +155,18 @@ void LoopClosureSupport::clear() {
   calibration_cursor_ = 0;
 }
 
+void LoopClosureSupport::addTests(FinishJob* job, bool test_held) {
+  job->loop_closure_weight = loopClosureWeight(job->weights);
+  // The tests cost a factorisation of their own: only when a loop closure was held since the last
+  // tests, or what a held one is measured against has changed.
+  if (test_held || innovationRetestDue(job->loop_closure_weight))
+    job->innovation_candidates =
+        innovationCandidates(job->weights, job->options.robust_set_aside_weight, job->loop_closure_weight);
+  job->calibration_samples =
+      calibrationSamples(job->weights, job->options.robust_set_aside_weight, job->loop_closure_weight,
+                         !job->innovation_candidates.empty());
+}
+
 bool LoopClosureSupport::innovationRetestDue(double loop_closure_weight) const {
   return loop_closure_weight >= (1.0 + kInnovationRetestGrowth) * innovation_tested_weight_;
 }

@@ -389,12 +389,7 @@ OptimizeResult MapOptimizer::finishNow(unsigned iterations) {
   bool released = false, last_round_released = false;
   for (std::size_t round = 0; round < kMaxFinishRounds; ++round) {
     FinishJob job = makeFinishJob(iterations, finishGraph());
-    job.loop_closure_weight = support_.loopClosureWeight(job.weights);
-    job.innovation_candidates = support_.innovationCandidates(
-        job.weights, job.options.robust_set_aside_weight, job.loop_closure_weight);
-    job.calibration_samples =
-        support_.calibrationSamples(job.weights, job.options.robust_set_aside_weight, job.loop_closure_weight,
-                                    !job.innovation_candidates.empty());
+    support_.addTests(&job, /*test_held=*/true);  // ~optimize tests the held ones every round
     takeFromScratch(&job);
     outcome = runFinishJob(std::move(job));
     if (outcome.from_scratch_kept) ++counters_->finishes_from_scratch_kept;
@@ -534,16 +529,7 @@ std::optional<FinishJob> MapOptimizer::takeFinishJob(const ros::Time& now) {
   FinishJob job = makeFinishJob(static_cast<unsigned>(options_.finish_max_iterations), finishGraph());
   job.options.relative_decrease_tolerance = kBackgroundRelativeDecrease;
   job.sequence = ++finish_sequence_;
-  job.loop_closure_weight = support_.loopClosureWeight(job.weights);
-  // The tests cost a factorisation of their own: only when a loop closure was held since the last
-  // finish, or the map's loop closures grew enough since the last tests (what a held one is measured
-  // against has changed: LoopClosureSupport::innovationRetestDue).
-  if (held_since_finish_ || support_.innovationRetestDue(job.loop_closure_weight))
-    job.innovation_candidates = support_.innovationCandidates(
-        job.weights, job.options.robust_set_aside_weight, job.loop_closure_weight);
-  job.calibration_samples =
-      support_.calibrationSamples(job.weights, job.options.robust_set_aside_weight, job.loop_closure_weight,
-                                  !job.innovation_candidates.empty());
+  support_.addTests(&job, held_since_finish_);
   held_since_finish_ = false;
   finish_after_release_ = false;
   takeFromScratch(&job);

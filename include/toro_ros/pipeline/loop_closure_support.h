@@ -80,6 +80,11 @@ class LoopClosureSupport {
   // any.  Keeps the outcome's calibration samples first.
   bool releasePredicted(const FinishOutcome& outcome);
 
+  // Fills a finish job's tests from its weights and options: its loop_closure_weight, the held
+  // loop closures to test (innovationCandidates) when `test_held` (a loop closure was held since the
+  // last finish, or an explicit finish) or when the map's loop closures grew enough since the last
+  // tests (innovationRetestDue), and the calibration samples beside them (calibrationSamples).
+  void addTests(FinishJob* job, bool test_held);
   // What a finish job is to test.  innovationCandidates: held loop closures (left out of the finish
   // by weights below set_aside_weight) whose innovation it gives, those tested longest ago first,
   // at most kInnovationTestsPerFinish; remembers `loop_closure_weight` for innovationRetestDue.
